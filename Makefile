@@ -1,0 +1,62 @@
+# Everything runs inside .venv, created on first use and reused after (a stamp tracks pyproject changes).
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+HOST ?= 127.0.0.1
+PORT ?= 8000
+URL ?= http://127.0.0.1:8000
+DURATION ?= 60
+MODEL ?= models/frt_unicycle.onnx
+FIND_LINKS := $(if $(wildcard /opt/wheels),--find-links /opt/wheels,)
+
+.PHONY: venv serve test lint format train train-smoke evaluate evaluate-full bench load scale-test scenarios plots clean
+
+$(STAMP): pyproject.toml client/pyproject.toml
+	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet $(FIND_LINKS) -e '.[train,dev]' -e ./client
+	touch $(STAMP)
+
+venv: $(STAMP)
+
+serve: $(STAMP)
+	FRT_MODEL_PATH=$(MODEL) $(BIN)/uvicorn service.app:app --host $(HOST) --port $(PORT)
+
+lint: $(STAMP)
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+
+format: $(STAMP)
+	$(BIN)/ruff format .
+	$(BIN)/ruff check --fix .
+
+test: lint
+	$(BIN)/python -m pytest -q
+
+train: $(STAMP)
+	$(BIN)/python -m models.train --config models/configs/full.json
+
+train-smoke: $(STAMP)
+	$(BIN)/python -m models.train --config models/configs/smoke.json --out /tmp/frt-smoke
+
+evaluate: $(STAMP)
+	$(BIN)/python -m models.evaluate --model $(MODEL) --rollouts 16384
+
+evaluate-full: $(STAMP)
+	$(BIN)/python -m models.evaluate --model $(MODEL) --rollouts 262144 --write-card
+
+bench: $(STAMP)
+	$(BIN)/python scripts/bench.py --model $(MODEL)
+
+load: $(STAMP)
+	$(BIN)/python scripts/load.py --url $(URL) --duration $(DURATION)
+
+scale-test: $(STAMP)
+	$(BIN)/python -m pytest -q tests/test_scale_out.py
+
+scenarios: $(STAMP)
+	$(BIN)/python -m experiments.run_all
+
+clean:
+	rm -rf $(VENV) .pytest_cache .ruff_cache

@@ -1,0 +1,123 @@
+"""Sampling of FRT parameters and of training points (numpy, seeded).
+
+One parameter distribution serves training, calibration and evaluation: v_start, and for each
+control a start and an end interval inside the hard limits, narrow (high confidence) to full width
+(low confidence), with constant, independent, shrinking and growing bounds over the horizon.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from models.contract import COL, HORIZON_S, N_INPUTS, U1_LIMIT, U2_LIMIT, V_START_MAX
+from models.dynamics import initial_set_value
+from models.rollout import rk4_rollout, sample_control_schedules, sample_initial_states
+
+
+def _interval(n: int, limit: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    centred = rng.uniform(0, 1, n) < 0.6
+    center = np.where(centred, rng.normal(0, 0.15 * limit, n), rng.uniform(-limit, limit, n))
+    half = limit * 10 ** rng.uniform(-2.3, 0.0, n)
+    full = rng.uniform(0, 1, n) < 0.1
+    lo = np.where(full, -limit, np.clip(center - half, -limit, limit))
+    hi = np.where(full, limit, np.clip(center + half, -limit, limit))
+    return lo, hi
+
+
+def _start_end(n: int, limit: float, rng: np.random.Generator) -> tuple[np.ndarray, ...]:
+    """(lo_start, lo_end, hi_start, hi_end) with constant, independent, shrinking, growing pairs."""
+    lo_s, hi_s = _interval(n, limit, rng)
+    lo_i, hi_i = _interval(n, limit, rng)
+    mode = rng.uniform(0, 1, n)
+    center, half = 0.5 * (lo_s + hi_s), 0.5 * (hi_s - lo_s)
+    factor = rng.uniform(0.05, 0.5, n)
+    lo_shrink, hi_shrink = center - factor * half, center + factor * half
+    lo_e = np.select([mode < 0.35, mode < 0.6, mode < 0.8], [lo_s, lo_i, lo_shrink], lo_s)
+    hi_e = np.select([mode < 0.35, mode < 0.6, mode < 0.8], [hi_s, hi_i, hi_shrink], hi_s)
+    grow = mode >= 0.8  # growing: the narrow pair is the start
+    lo_s, lo_e = np.where(grow, lo_shrink, lo_s), np.where(grow, lo_s, lo_e)
+    hi_s, hi_e = np.where(grow, hi_shrink, hi_s), np.where(grow, hi_s, hi_e)
+    return lo_s, lo_e, hi_s, hi_e
+
+
+def sample_parameters(n: int, rng: np.random.Generator) -> np.ndarray:
+    """[n, 14] rows with v_start and the eight bound columns set (t and the state are zero)."""
+    x = np.zeros((n, N_INPUTS))
+    slow = rng.uniform(0, 1, n) < 0.15
+    x[:, COL["v_start"]] = np.where(slow, rng.uniform(0, 1, n), rng.uniform(0, V_START_MAX, n))
+    for dim, limit in (("u1", U1_LIMIT), ("u2", U2_LIMIT)):
+        lo_s, lo_e, hi_s, hi_e = _start_end(n, limit, rng)
+        x[:, COL[f"{dim}_min_start"]] = lo_s
+        x[:, COL[f"{dim}_min_end"]] = lo_e
+        x[:, COL[f"{dim}_max_start"]] = hi_s
+        x[:, COL[f"{dim}_max_end"]] = hi_e
+    return x
+
+
+def set_state(x: np.ndarray, t: np.ndarray, state: tuple[np.ndarray, ...]) -> np.ndarray:
+    """Copy of ``x`` with the time and state columns replaced."""
+    out = x.copy()
+    out[:, COL["t"]] = t
+    for name, value in zip(("px", "py", "heading", "speed"), state, strict=True):
+        out[:, COL[name]] = value
+    return out
+
+
+@dataclass
+class TrainingBatch:
+    """Points for the PDE residual, plus rollout endpoints with their upper bound on V."""
+
+    pde_points: np.ndarray  # [N, 14]
+    rollout_points: np.ndarray  # [M, 14]
+    rollout_upper_bound: np.ndarray  # [M]: V(t, xi(t)) <= l(xi(0))
+
+
+def sample_training_batch(
+    n_params: int,
+    points_per_param: int,
+    t_max: float,
+    rng: np.random.Generator,
+    rollout_steps: int = 24,
+    horizon: float = HORIZON_S,
+) -> TrainingBatch:
+    """A batch: rollout endpoints (exact reachable states), multi-scale perturbations of them, and
+    uniform points over the region any in-range car can reach."""
+    params = np.repeat(sample_parameters(n_params, rng), points_per_param, axis=0)
+    n = params.shape[0]
+    t = rng.uniform(0, t_max, n)
+    v_start = params[:, COL["v_start"]]
+
+    start = sample_initial_states(v_start, rng, spread=2.0)
+    a1, a2, switches = sample_control_schedules(n, horizon, rng)
+    switches = switches * (t / horizon)[:, None]
+    end, _ = rk4_rollout(start, params, t, a1, a2, switches, rollout_steps)
+    rollout_points = set_state(params, t, end)
+    upper = initial_set_value(*start, v_start)
+
+    log_uniform = 10 ** rng.uniform(-1.3, 0.7, n)
+    px = end[0] + rng.normal(0, 1, n) * log_uniform
+    py = end[1] + rng.normal(0, 1, n) * log_uniform
+    heading = end[2] + rng.normal(0, 1, n) * 10 ** rng.uniform(-2.3, -0.3, n)
+    speed = np.clip(end[3] + rng.normal(0, 1, n) * 10 ** rng.uniform(-1.7, 0.3, n), 0.0, None)
+    speed[rng.uniform(0, 1, n) < 0.05] = 0.0
+    perturbed = set_state(params, t, (px, py, heading, speed))
+
+    k = max(n // 8, 1)
+    reach = 1.0 + (v_start[:k] + 10.0 * t[:k]) * t[:k]
+    uniform = set_state(
+        params[:k],
+        t[:k],
+        (
+            rng.uniform(-1, 1, k) * reach,
+            rng.uniform(-1, 1, k) * reach,
+            rng.uniform(-np.pi, np.pi, k),
+            rng.uniform(0, 1, k) * (v_start[:k] + 10.0 * t[:k] + 1.0),
+        ),
+    )
+    return TrainingBatch(
+        pde_points=np.concatenate([rollout_points, perturbed, uniform]),
+        rollout_points=rollout_points,
+        rollout_upper_bound=upper,
+    )

@@ -35,6 +35,28 @@ class Settings(BaseSettings):
     auth_token: str | None = None
     store_url: str | None = None
 
+    # Scheduling of the exact FRT and the latency budget of collision checks.
+    #: Threads computing exact FRTs in the background (CPU-bound: keep at or below the core count).
+    frt_workers: int = Field(2, ge=1, le=64)
+    #: Exact FRTs kept in memory, keyed by (agent, FRT version, inputs); least recently used go first.
+    frt_cache_size: int = Field(1024, ge=1)
+    #: Default deadline of a collision check, measured from the request's arrival.
+    deadline_ms: float = Field(20.0, gt=0.0, le=60_000.0)
+    #: Part of a deadline kept back to answer from the conservative set when the exact one is late.
+    deadline_reserve_ms: float = Field(1.0, ge=0.0)
+    #: How long contours and the stateless endpoint wait for an exact set before going conservative.
+    exact_timeout_s: float = Field(5.0, gt=0.0)
+    #: Agents one multi-agent collision check may name (or find, when it asks for all of them).
+    max_agents_per_check: int = Field(256, ge=1)
+    #: Time slices one contour request may ask for.
+    max_slices: int = Field(16, ge=1)
+
+    # Logging: one JSON object per line on stderr.
+    log_level: str = "INFO"
+    log_json: bool = True
+    #: Log one line per HTTP request (method, route, status, duration).
+    log_requests: bool = True
+
 
 @lru_cache
 def get_settings() -> Settings:

@@ -63,8 +63,14 @@ class NominalFrame(nn.Module):
 
         u1_mid_s, u1_mid_e = mid("u1_min_start", "u1_max_start"), mid("u1_min_end", "u1_max_end")
         u2_mid_s, u2_mid_e = mid("u2_min_start", "u2_max_start"), mid("u2_min_end", "u2_max_end")
-        u1_half_s, u1_half_e = half("u1_min_start", "u1_max_start"), half("u1_min_end", "u1_max_end")
-        u2_half_s, u2_half_e = half("u2_min_start", "u2_max_start"), half("u2_min_end", "u2_max_end")
+        u1_half_s, u1_half_e = (
+            half("u1_min_start", "u1_max_start"),
+            half("u1_min_end", "u1_max_end"),
+        )
+        u2_half_s, u2_half_e = (
+            half("u2_min_start", "u2_max_start"),
+            half("u2_min_end", "u2_max_end"),
+        )
 
         def integral(start: torch.Tensor, end: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
             """Integral over [0, tau] of the linear interpolation start -> end over [0, T]."""

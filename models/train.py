@@ -62,7 +62,9 @@ def horizon_at(step: int, config: TrainConfig) -> float:
 def learning_rate(step: int, config: TrainConfig) -> float:
     """Cosine decay from lr to lr_final."""
     progress = min(1.0, step / max(config.steps, 1))
-    return config.lr_final + 0.5 * (config.lr - config.lr_final) * (1 + math.cos(math.pi * progress))
+    return config.lr_final + 0.5 * (config.lr - config.lr_final) * (
+        1 + math.cos(math.pi * progress)
+    )
 
 
 def train(config: TrainConfig, out: Path, max_minutes: float | None = None) -> Path:

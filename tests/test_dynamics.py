@@ -100,8 +100,13 @@ def test_rollout_matches_closed_form_straight_line() -> None:
     t = np.array([3.0])
     alpha = np.zeros((1, 2))
     (px, py, _, v), _ = rk4_rollout(
-        (np.zeros(1), np.zeros(1), np.zeros(1), np.array([10.0])), x, t, alpha, alpha,
-        np.array([[9.0]]), 50,
+        (np.zeros(1), np.zeros(1), np.zeros(1), np.array([10.0])),
+        x,
+        t,
+        alpha,
+        alpha,
+        np.array([[9.0]]),
+        50,
     )
     assert px[0] == pytest.approx(10 * 3 + 0.5 * 2 * 9, rel=1e-9)
     assert py[0] == pytest.approx(0.0, abs=1e-12)
@@ -114,8 +119,13 @@ def test_braking_car_stops_and_stays() -> None:
         x[0, COL[name]] = -5.0
     alpha = np.zeros((1, 2))
     (px, _, _, v), _ = rk4_rollout(
-        (np.zeros(1), np.zeros(1), np.zeros(1), np.array([5.0])), x, np.array([3.0]),
-        alpha, alpha, np.array([[9.0]]), 300,
+        (np.zeros(1), np.zeros(1), np.zeros(1), np.array([5.0])),
+        x,
+        np.array([3.0]),
+        alpha,
+        alpha,
+        np.array([[9.0]]),
+        300,
     )
     assert v[0] == 0.0
     assert px[0] == pytest.approx(5.0**2 / (2 * 5.0), abs=0.05)

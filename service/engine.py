@@ -253,7 +253,7 @@ class FRTEngine:
                     raise OutOfRangeError(f"{dim}_min_{end}", float(lo), -math.inf, float(hi))
 
     # ----------------------------------------------------------------- outer bound
-    def _outer(self, v_start: float, bounds: np.ndarray) -> OuterBound:
+    def outer(self, v_start: float, bounds: np.ndarray) -> OuterBound:
         m = self.card.initial_set
         from models.contract import InitialSet
 
@@ -281,7 +281,7 @@ class FRTEngine:
 
     def conservative(self, pose: Pose, v_start: float, bounds: np.ndarray) -> FRTSet:
         """The outer bound as a set: contains the exact set, computed in well under a millisecond."""
-        ob = self._outer(v_start, bounds)
+        ob = self.outer(v_start, bounds)
         k = self.outer_steps_per_slice
         upto = [min(j * k + (k + 1) // 2, len(ob.sweep)) for j in range(self.n_slices)]
         return BoxTubeSet(
@@ -304,18 +304,21 @@ class FRTEngine:
         ys = np.arange(y_lo - pad, y_hi + pad + resolution, resolution)
         return xs, ys
 
-    def _slice_values(
+    def stencil_min(
         self,
         s: float,
-        xs: np.ndarray,
-        ys: np.ndarray,
+        px: np.ndarray,
+        py: np.ndarray,
         v_start: float,
         bounds: np.ndarray,
         ob: OuterBound,
     ) -> tuple[np.ndarray, int]:
-        """min over a heading/speed stencil of V(s, x, y, heading, speed) at the grid nodes."""
-        gx, gy = np.meshgrid(xs, ys)
-        px, py = gx.ravel(), gy.ravel()
+        """min over a heading/speed stencil of V(s, x, y, heading, speed) at the points (px, py).
+
+        The stencil is centred on the arc-consistent heading 2 atan2(y, x) and on the speed that
+        covers the arc's length in time s at constant acceleration, both clipped to the exact
+        heading and speed intervals at s. Returns the minima and the number of evaluations.
+        """
         k = int(np.argmin(np.abs(ob.times - s)))
         th_lo, th_hi = ob.heading[k]
         v_lo, v_hi = ob.speed[k]
@@ -342,13 +345,12 @@ class FRTEngine:
         x[:, COL["speed"]] = speed
         x[:, COL["v_start"]] = v_start
         x[:, 6:] = bounds
-        values = self.model.evaluate(x).reshape(shape).min(axis=(1, 2))
-        return values.reshape(gy.shape), n
+        return self.model.evaluate(x).reshape(shape).min(axis=(1, 2)), n
 
     def exact(self, pose: Pose, v_start: float, bounds: np.ndarray) -> FRTSet:
         """The model's set {V <= delta}, projected on (x, y), per slice and as tubes."""
         bounds = np.asarray(bounds, dtype=np.float32)
-        ob = self._outer(v_start, bounds)
+        ob = self.outer(v_start, bounds)
         boxes = self._interval_boxes(ob)
         k = self.outer_steps_per_slice
         regions = [ob.sweep[min(j * k, len(ob.sweep) - 1)] for j in range(self.n_slices)]
@@ -359,7 +361,9 @@ class FRTEngine:
         for j in range(1, self.n_slices):
             s = j * self.slice_dt
             xs, ys = self._grid(regions[j], resolution)
-            values, n = self._slice_values(s, xs, ys, v_start, bounds, ob)
+            gx, gy = np.meshgrid(xs, ys)
+            values, n = self.stencil_min(s, gx.ravel(), gy.ravel(), v_start, bounds, ob)
+            values = values.reshape(gx.shape)
             evaluations += n
             slices.append(
                 _filled_contour(xs, ys, values, self.level).intersection(_box(regions[j]))

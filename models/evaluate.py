@@ -1,0 +1,345 @@
+"""Accuracy of the shipped value network against an independent ground-truth sandwich.
+
+``python -m models.evaluate --model models/frt_unicycle.onnx [--rollouts N] [--calibrate] [--write-card]``
+
+* Inner reference: rollouts of the true dynamics (RK4, dt = 0.02 s) from starts spread over the
+  initial set, under controls that switch between the bounds, drive straight, or take random values.
+  Every recorded state is reachable, so the model must contain it (recall).
+* Outer reference: the interval outer bound of models/outer_bound.py; nothing can be outside it.
+
+For each setting of models/eval_settings.py and each tube time t in {1, 2, 3} s it reports:
+the share of sampled reachable states (tau <= t) with V(tau, x) <= delta (a state reached at tau lies
+in the tube up to t when it lies in the set at tau); the share of rollout (x, y) cells inside the
+service's projected tube K(t); the IoU of K(t) with the rollout cells; and how far K(t) reaches
+beyond the rollout cells (95th percentile of the distance of extra cells to the nearest rollout cell).
+
+Calibration (--calibrate): scenario optimisation over random parameter settings (Lin & Bansal's
+verification of DeepReach): delta is the largest value of V at sampled reachable states, so with N
+i.i.d. samples, P(a new reachable state has V > delta) <= eps holds with confidence 1 - (1 - eps)^N.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import shapely
+from scipy.spatial import cKDTree
+from tqdm import tqdm
+
+from models.contract import COL, HORIZON_S, N_INPUTS
+from models.eval_settings import SETTINGS, Setting
+from models.export_card import write_card
+from models.rollout import rk4_rollout, sample_control_schedules, sample_initial_states
+from models.sampling import sample_parameters
+from service.engine import FRTEngine, Pose
+from service.model_runtime import ValueModel
+
+TUBE_TIMES = (1.0, 2.0, 3.0)
+CELL_M = 0.25
+DT = 0.02
+
+
+@dataclass
+class Rollouts:
+    times: np.ndarray  # [K + 1]
+    states: np.ndarray  # [K + 1, N, 4]
+
+
+def simulate(v_start: float, bounds: np.ndarray, n: int, rng: np.random.Generator) -> Rollouts:
+    """n rollouts over [0, T] recorded every DT, all starting inside the initial set."""
+    params = np.zeros((n, N_INPUTS))
+    params[:, 6:] = bounds
+    params[:, COL["v_start"]] = v_start
+    start = sample_initial_states(params[:, COL["v_start"]], rng)
+    a1, a2, switches = sample_control_schedules(n, HORIZON_S, rng)
+    steps = round(HORIZON_S / DT)
+    _, trace = rk4_rollout(
+        start, params, np.full(n, HORIZON_S), a1, a2, switches, steps, record=True
+    )
+    times = np.concatenate([[0.0], [float(tau[0]) for tau, _ in trace]])
+    states = np.stack([np.stack(start, axis=1)] + [np.stack(s, axis=1) for _, s in trace])
+    return Rollouts(times=times, states=states)
+
+
+def model_inputs(
+    t: np.ndarray, states: np.ndarray, v_start: float, bounds: np.ndarray
+) -> np.ndarray:
+    x = np.empty((len(t), N_INPUTS), dtype=np.float32)
+    x[:, COL["t"]] = t
+    x[:, COL["px"] : COL["speed"] + 1] = states
+    x[:, COL["heading"]] = (states[:, 2] + math.pi) % (2 * math.pi) - math.pi
+    x[:, COL["v_start"]] = v_start
+    x[:, 6:] = bounds
+    return x
+
+
+def cells_of(xy: np.ndarray) -> np.ndarray:
+    keys = np.floor(xy / CELL_M).astype(np.int64)
+    return np.unique(keys, axis=0)
+
+
+def model_cells(geometry: Any, reference: np.ndarray) -> np.ndarray:
+    """Cells (same grid) whose centre lies in ``geometry``; the search box covers both sets."""
+    if geometry.is_empty:
+        return np.zeros((0, 2), dtype=np.int64)
+    x0, y0, x1, y1 = geometry.bounds
+    lo = np.minimum(np.floor(np.array([x0, y0]) / CELL_M), reference.min(axis=0)).astype(int) - 1
+    hi = np.maximum(np.ceil(np.array([x1, y1]) / CELL_M), reference.max(axis=0)).astype(int) + 1
+    ix, iy = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1))
+    keys = np.stack([ix.ravel(), iy.ravel()], axis=1)
+    centres = (keys + 0.5) * CELL_M
+    inside = shapely.contains_xy(geometry, centres[:, 0], centres[:, 1])
+    return keys[inside]
+
+
+def compare_cells(reference: np.ndarray, model: np.ndarray) -> dict[str, float]:
+    ref = {tuple(k) for k in reference}
+    mod = {tuple(k) for k in model}
+    both = len(ref & mod)
+    extra = np.array(sorted(mod - ref), dtype=float).reshape(-1, 2)
+    beyond = 0.0
+    if len(extra):
+        distance, _ = cKDTree(reference.astype(float)).query(extra)
+        beyond = float(np.percentile(distance * CELL_M, 95))
+    return {
+        "recall_cells": both / max(len(ref), 1),
+        "iou": both / max(len(ref | mod), 1),
+        "beyond_p95_m": beyond,
+    }
+
+
+def evaluate_setting(
+    model: ValueModel,
+    engine: FRTEngine,
+    setting: Setting,
+    n_rollouts: int,
+    rng: np.random.Generator,
+    delta: float,
+    state_samples: int = 20000,
+) -> tuple[list[dict[str, Any]], dict[str, Any]]:
+    bounds = setting.bounds()
+    roll = simulate(setting.v_start, bounds, n_rollouts, rng)
+    frt = engine.exact(Pose(0.0, 0.0, 0.0), setting.v_start, bounds)
+    ob = engine.outer(setting.v_start, bounds)
+    rows = []
+    artefacts: dict[str, Any] = {"frt": frt, "rollouts": roll, "outer": ob}
+    for t in TUBE_TIMES:
+        upto = roll.times <= t + 1e-9
+        states = roll.states[upto]  # [k, N, 4]
+        taus = np.broadcast_to(roll.times[upto][:, None], states.shape[:2])
+        flat_states = states.reshape(-1, 4)
+        flat_t = taus.reshape(-1)
+        pick = rng.choice(len(flat_t), size=min(state_samples, len(flat_t)), replace=False)
+        values = model.evaluate(
+            model_inputs(flat_t[pick], flat_states[pick], setting.v_start, bounds)
+        )
+        reference = cells_of(flat_states[:, :2])
+        tube = frt.geometry("tube", t)
+        row = {
+            "setting": setting.name,
+            "t": t,
+            "recall_states": float(np.mean(values <= delta)),
+            **compare_cells(reference, model_cells(tube, reference)),
+        }
+        outer_tube = shapely.union_all(
+            [shapely.box(b[0], b[2], b[1], b[3]) for b in ob.sweeps_until(t)]
+        )
+        row["outside_outer_m2"] = float(tube.difference(outer_tube).area)
+        rows.append(row)
+        artefacts[f"reference_{t:g}"] = reference
+    return rows, artefacts
+
+
+def calibrate(
+    model: ValueModel,
+    engine: FRTEngine,
+    n_settings: int,
+    per_setting: int,
+    rng: np.random.Generator,
+    epsilon: float = 1e-4,
+) -> dict[str, Any]:
+    """Scenario calibration of delta (network) and of the projection level used by the engine."""
+    params = sample_parameters(n_settings, rng)
+    values, stencil = [], []
+    slice_times = np.arange(1, engine.n_slices) * engine.slice_dt
+    for row in tqdm(params, desc="calibrate", unit="setting", mininterval=5):
+        v_start, bounds = float(row[COL["v_start"]]), row[6:].astype(np.float32)
+        p = np.repeat(row[None, :], per_setting, axis=0)
+        t = rng.choice(slice_times, size=per_setting)
+        start = sample_initial_states(p[:, COL["v_start"]], rng)
+        a1, a2, sw = sample_control_schedules(per_setting, HORIZON_S, rng)
+        sw = sw * (t / HORIZON_S)[:, None]
+        end, _ = rk4_rollout(start, p, t, a1, a2, sw, 60)
+        states = np.stack(end, axis=1)
+        values.append(model.evaluate(model_inputs(t, states, v_start, bounds)))
+        ob = engine.outer(v_start, bounds)
+        for s in np.unique(t):
+            rows = t == s
+            m, _ = engine.stencil_min(
+                float(s), states[rows, 0], states[rows, 1], v_start, bounds, ob
+            )
+            stencil.append(m)
+    values = np.concatenate(values)
+    stencil = np.concatenate(stencil)
+    n = len(values)
+    delta = max(0.0, float(values.max()))
+    return {
+        "delta": delta,
+        "projection_delta": max(delta, float(stencil.max())),
+        "method": "scenario optimisation: max of V over sampled reachable states (set semantics)",
+        "samples": n,
+        "parameter_settings": n_settings,
+        "epsilon": epsilon,
+        "confidence": 1.0 - (1.0 - epsilon) ** n,
+        "guarantee": (
+            f"with confidence 1 - (1 - {epsilon:g})^{n}, a reachable state drawn from the same "
+            f"distribution has V <= delta with probability >= {1 - epsilon:g}"
+        ),
+        "quantiles_of_V_at_reachable_states": {
+            q: float(np.quantile(values, float(q))) for q in ("0.5", "0.99", "0.999")
+        },
+    }
+
+
+def summarise(rows: list[dict[str, Any]]) -> dict[str, float]:
+    return {
+        "min_recall_states": min(r["recall_states"] for r in rows),
+        "min_recall_cells": min(r["recall_cells"] for r in rows),
+        "mean_iou": float(np.mean([r["iou"] for r in rows])),
+        "worst_iou": min(r["iou"] for r in rows),
+        "p95_beyond_m_max": max(r["beyond_p95_m"] for r in rows),
+        "p95_beyond_m_mean": float(np.mean([r["beyond_p95_m"] for r in rows])),
+    }
+
+
+def print_table(rows: list[dict[str, Any]]) -> None:
+    header = f"{'setting':28s} {'t':>4s} {'recall(states)':>14s} {'recall(cells)':>13s} {'IoU':>6s} {'beyond p95 [m]':>14s}"
+    print(header)
+    print("-" * len(header))
+    for r in rows:
+        print(
+            f"{r['setting']:28s} {r['t']:4.1f} {r['recall_states']:14.4f} "
+            f"{r['recall_cells']:13.4f} {r['iou']:6.3f} {r['beyond_p95_m']:14.2f}"
+        )
+
+
+def plot_contours(artefacts: dict[str, dict[str, Any]], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(artefacts)
+    fig, axes = plt.subplots(1, len(names), figsize=(4.2 * len(names), 4.2))
+    for ax, name in zip(np.atleast_1d(axes), names, strict=True):
+        a = artefacts[name]
+        ref = a["reference_3"]
+        ax.scatter(
+            (ref[:, 0] + 0.5) * CELL_M,
+            (ref[:, 1] + 0.5) * CELL_M,
+            s=0.3,
+            c="tab:blue",
+            label="rollout cells (truth, inner)",
+        )
+        for t, colour in zip(TUBE_TIMES, ("tab:green", "tab:orange", "tab:red"), strict=True):
+            geom = a["frt"].geometry("tube", t)
+            for poly in getattr(geom, "geoms", [geom]):
+                if not poly.is_empty:
+                    x, y = poly.exterior.xy
+                    ax.plot(x, y, color=colour, lw=1.2, label=f"model tube t={t:g}s")
+        box = a["outer"].sweeps_until(HORIZON_S)
+        outer = shapely.union_all([shapely.box(b[0], b[2], b[1], b[3]) for b in box])
+        for poly in getattr(outer, "geoms", [outer]):
+            x, y = poly.exterior.xy
+            ax.plot(x, y, color="grey", lw=0.8, ls="--", label="outer bound")
+        ax.set_title(name)
+        ax.set_aspect("equal")
+        handles, labels = ax.get_legend_handles_labels()
+        unique = dict(zip(labels, handles, strict=False))
+    fig.legend(unique.values(), unique.keys(), loc="lower center", ncol=5, fontsize=8)
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--model", type=Path, default=Path("models/frt_unicycle.onnx"))
+    parser.add_argument("--rollouts", type=int, default=16384)
+    parser.add_argument("--seed", type=int, default=2026)
+    parser.add_argument("--calibrate", action="store_true")
+    parser.add_argument("--calibration-settings", type=int, default=1000)
+    parser.add_argument("--calibration-per-setting", type=int, default=128)
+    parser.add_argument("--write-card", action="store_true")
+    parser.add_argument("--only", nargs="*", default=None, help="names of settings to evaluate")
+    parser.add_argument("--plot", type=Path, default=None)
+    parser.add_argument("--json", type=Path, default=None)
+    args = parser.parse_args()
+
+    rng = np.random.default_rng(args.seed)
+    model = ValueModel.load(args.model, threads=2)
+    card = dict(model.card.raw)
+    if args.calibrate:
+        started = time.monotonic()
+        calibration = calibrate(
+            model, FRTEngine(model), args.calibration_settings, args.calibration_per_setting, rng
+        )
+        calibration["time_s"] = round(time.monotonic() - started, 1)
+        card["calibration"] = calibration
+        card["projection"] = {
+            "delta": calibration["projection_delta"],
+            "note": "level of the engine's heading/speed stencil minimum, calibrated like delta",
+        }
+        if args.write_card:
+            write_card(card, args.model)
+            model = ValueModel.load(args.model, threads=2)
+        print(json.dumps(calibration, indent=2))
+    delta = model.card.delta
+    engine = FRTEngine(model)
+    settings = [s for s in SETTINGS if not args.only or s.name in args.only]
+    rows: list[dict[str, Any]] = []
+    artefacts: dict[str, dict[str, Any]] = {}
+    started = time.monotonic()
+    for setting in tqdm(settings, desc="evaluate", unit="setting"):
+        r, a = evaluate_setting(model, engine, setting, args.rollouts, rng, delta)
+        rows += r
+        if setting.name in (
+            "urban_narrow",
+            "left_turn",
+            "shrinking_wide_to_narrow",
+            "fast_wide_limits",
+        ):
+            artefacts[setting.name] = a
+    print_table(rows)
+    summary = summarise(rows)
+    print(json.dumps(summary, indent=2))
+    print(f"delta = {delta:.4f}; evaluated in {time.monotonic() - started:.0f} s")
+    if args.plot and artefacts:
+        plot_contours(artefacts, args.plot)
+    result = {
+        "rollouts_per_setting": args.rollouts,
+        "cell_m": CELL_M,
+        "dt_s": DT,
+        "seed": args.seed,
+        "summary": summary,
+        "rows": rows,
+    }
+    if args.json:
+        args.json.write_text(json.dumps(result, indent=2))
+    if args.write_card:
+        card = dict(model.card.raw)
+        card["accuracy"] = result
+        write_card(card, args.model)
+
+
+if __name__ == "__main__":
+    main()

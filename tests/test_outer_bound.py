@@ -1,0 +1,55 @@
+"""The interval outer bound contains every simulated reachable position (independent rollouts)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from models.contract import COL, HORIZON_S, N_INPUTS
+from models.eval_settings import SETTINGS
+from models.outer_bound import cos_range, outer_bound
+from models.rollout import rk4_rollout, sample_control_schedules, sample_initial_states
+from models.sampling import sample_parameters
+
+
+def test_cos_range_is_exact_on_dense_samples() -> None:
+    rng = np.random.default_rng(0)
+    lo = rng.uniform(-10, 10, 300)
+    hi = lo + rng.uniform(0, 7, 300)
+    c_lo, c_hi = cos_range(lo, hi)
+    dense = np.cos(np.linspace(lo, hi, 20001))
+    np.testing.assert_allclose(c_lo, dense.min(axis=0), atol=1e-6)
+    np.testing.assert_allclose(c_hi, dense.max(axis=0), atol=1e-6)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_rollouts_stay_inside_the_outer_bound(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    settings = [(s.v_start, s.bounds()) for s in SETTINGS[::3]]
+    settings += [(float(p[COL["v_start"]]), p[6:]) for p in sample_parameters(6, rng)]
+    n = 2000
+    for v_start, bounds in settings:
+        ob = outer_bound(v_start, bounds)
+        params = np.zeros((n, N_INPUTS))
+        params[:, 6:] = bounds
+        params[:, COL["v_start"]] = v_start
+        start = sample_initial_states(params[:, COL["v_start"]], rng)
+        a1, a2, sw = sample_control_schedules(n, HORIZON_S, rng)
+        _, trace = rk4_rollout(start, params, np.full(n, HORIZON_S), a1, a2, sw, 150, record=True)
+        for tau, (px, py, th, v) in trace[::5]:
+            t = float(tau[0])
+            x_lo, x_hi, y_lo, y_hi = ob.box_containing_slice(t)
+            k = ob.slice_index(t)
+            assert np.all(px >= x_lo - 1e-6) and np.all(px <= x_hi + 1e-6)
+            assert np.all(py >= y_lo - 1e-6) and np.all(py <= y_hi + 1e-6)
+            assert np.all(np.hypot(px, py) <= ob.radius[k + 1] + 1e-6)
+            assert np.all(v >= ob.speed[k : k + 2, 0].min() - 1e-6)
+            assert np.all(v <= ob.speed[k : k + 2, 1].max() + 1e-6)
+
+
+def test_outer_bound_is_not_vacuous_for_a_narrow_setting() -> None:
+    bounds = next(s for s in SETTINGS if s.name == "urban_narrow").bounds()
+    ob = outer_bound(8.0, bounds)
+    x_lo, x_hi, y_lo, y_hi = ob.box_at[-1]
+    assert 20 < x_lo < x_hi < 28
+    assert y_hi - y_lo < 8

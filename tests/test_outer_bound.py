@@ -36,7 +36,7 @@ def test_rollouts_stay_inside_the_outer_bound(seed: int) -> None:
         start = sample_initial_states(params[:, COL["v_start"]], rng)
         a1, a2, sw = sample_control_schedules(n, HORIZON_S, rng)
         _, trace = rk4_rollout(start, params, np.full(n, HORIZON_S), a1, a2, sw, 150, record=True)
-        for tau, (px, py, th, v) in trace[::5]:
+        for tau, (px, py, _heading, v) in trace[::5]:
             t = float(tau[0])
             x_lo, x_hi, y_lo, y_hi = ob.box_containing_slice(t)
             k = ob.slice_index(t)

@@ -35,6 +35,12 @@ class NetworkConfig:
         return asdict(self)
 
 
+def asinh_by_logs(z: torch.Tensor) -> torch.Tensor:
+    """asinh(z) = sign(z) log(|z| + sqrt(z^2 + 1)): the same function, from ops every ONNX
+    runtime kernel has in float64 (onnxruntime's Asinh is float32 only)."""
+    return torch.sign(z) * torch.log(torch.abs(z) + torch.sqrt(z * z + 1.0))
+
+
 def _column(x: torch.Tensor, name: str) -> torch.Tensor:
     return x[:, COL[name]]
 
@@ -126,6 +132,7 @@ class ValueNetwork(nn.Module):
         nn.init.zeros_(last.weight)
         nn.init.zeros_(last.bias)
         self.mlp = nn.Sequential(*layers, last)
+        self.asinh = torch.asinh
 
     n_features = 25
 
@@ -167,14 +174,14 @@ class ValueNetwork(nn.Module):
         speed_scale = V_START_MAX + 10.0 * self.horizon
         feats = [
             t / self.horizon,
-            torch.asinh(along / nom["along_spread"]),
-            torch.asinh(cross / nom["cross_spread"]),
+            self.asinh(along / nom["along_spread"]),
+            self.asinh(cross / nom["cross_spread"]),
             along / 50.0,
             cross / 50.0,
             torch.sin(d_heading),
             torch.cos(d_heading),
-            torch.asinh(torch.sin(d_heading) / nom["heading_spread"]),
-            torch.asinh(d_speed / nom["speed_spread"]),
+            self.asinh(torch.sin(d_heading) / nom["heading_spread"]),
+            self.asinh(d_speed / nom["speed_spread"]),
             d_speed / speed_scale,
             _column(x, "speed") / speed_scale,
             _column(x, "v_start") / V_START_MAX,

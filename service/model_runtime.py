@@ -59,6 +59,20 @@ def file_sha256(path: Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
+def _session(path: Path, threads: int) -> ort.InferenceSession:
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = threads
+    options.inter_op_num_threads = 1
+    try:
+        session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
+    except Exception as exc:  # onnxruntime raises its own exception types
+        raise ModelLoadError(f"onnxruntime cannot load {path}: {exc}") from exc
+    inputs = session.get_inputs()
+    if len(inputs) != 1 or inputs[0].name != INPUT_NAME or inputs[0].shape[-1] != N_INPUTS:
+        raise ModelLoadError(f"{path.name}: model input must be x: float32 [N, 14]")
+    return session
+
+
 class ValueModel:
     """V(x) for [N, 14] physical inputs, evaluated with onnxruntime on the CPU."""
 
@@ -68,7 +82,15 @@ class ValueModel:
         self._output = session.get_outputs()[0].name
 
     @classmethod
-    def load(cls, onnx_path: Path, card_path: Path | None = None, threads: int = 1) -> ValueModel:
+    def load(
+        cls,
+        onnx_path: Path,
+        card_path: Path | None = None,
+        threads: int = 1,
+        prefer_runtime_graph: bool = True,
+    ) -> ValueModel:
+        """Load the contract graph and its card; evaluate with the card's faster float32 twin
+        (``runtime_graph``) when it is present and its sha256 matches."""
         onnx_path = Path(onnx_path)
         card_path = Path(card_path) if card_path else onnx_path.with_suffix(".json")
         if not onnx_path.is_file():
@@ -83,18 +105,13 @@ class ValueModel:
         expected = raw.get("sha256")
         if expected and expected != file_sha256(onnx_path):
             raise ModelLoadError(f"sha256 of {onnx_path.name} does not match its card")
-        options = ort.SessionOptions()
-        options.intra_op_num_threads = threads
-        options.inter_op_num_threads = 1
-        try:
-            session = ort.InferenceSession(
-                str(onnx_path), options, providers=["CPUExecutionProvider"]
-            )
-        except Exception as exc:  # onnxruntime raises its own exception types
-            raise ModelLoadError(f"onnxruntime cannot load {onnx_path}: {exc}") from exc
-        inputs = session.get_inputs()
-        if len(inputs) != 1 or inputs[0].name != INPUT_NAME or inputs[0].shape[-1] != N_INPUTS:
-            raise ModelLoadError("model input must be x: float32 [N, 14]")
+        session = _session(onnx_path, threads)
+        runtime = raw.get("runtime_graph") or {}
+        fast_path = onnx_path.parent / str(runtime.get("file", ""))
+        if prefer_runtime_graph and runtime and fast_path.is_file():
+            if runtime.get("sha256") != file_sha256(fast_path):
+                raise ModelLoadError(f"sha256 of {fast_path.name} does not match the card")
+            session = _session(fast_path, threads)
         return cls(session, card)
 
     def evaluate(self, x: np.ndarray) -> np.ndarray:

@@ -216,10 +216,11 @@ class FRTEngine:
         model: ValueModel,
         slice_dt: float = 0.1,
         resolution_m: float = 0.25,
-        max_nodes: int = 6000,
+        max_nodes: int | None = None,
         heading_samples: int = 3,
         speed_samples: int = 3,
         outer_steps_per_slice: int = 2,
+        projection: bool = True,
     ) -> None:
         self.model = model
         self.card = model.card
@@ -227,13 +228,17 @@ class FRTEngine:
         self.slice_dt = slice_dt
         self.n_slices = round(self.horizon / slice_dt) + 1
         self.resolution_m = resolution_m
-        self.max_nodes = max_nodes
+        self._max_nodes = max_nodes
         self.heading_samples = heading_samples
         self.speed_samples = speed_samples
         self.outer_steps = (self.n_slices - 1) * outer_steps_per_slice
         self.outer_steps_per_slice = outer_steps_per_slice
-        projection = self.card.raw.get("projection") or {}
-        self.level = float(projection.get("delta", self.card.delta))
+        stencil = self.card.raw.get("projection") or {}
+        self.level = float(stencil.get("delta", self.card.delta))
+        self.use_projection = projection and model.projection is not None
+        if self.use_projection:
+            self.level = float(self.card.raw["projection_graph"]["delta"])
+        self.max_nodes = max_nodes or (40000 if self.use_projection else 6000)
         self.radius_m = float(self.card.initial_set.get("radius_m", 0.5))
 
     # ----------------------------------------------------------------- validation
@@ -347,6 +352,18 @@ class FRTEngine:
         x[:, 6:] = bounds
         return self.model.evaluate(x).reshape(shape).min(axis=(1, 2)), n
 
+    def projected_value(
+        self, s: float, px: np.ndarray, py: np.ndarray, v_start: float, bounds: np.ndarray
+    ) -> tuple[np.ndarray, int]:
+        """W(s, x, y), the distilled minimum over heading and speed (one evaluation per point)."""
+        x = np.zeros((len(px), N_INPUTS), dtype=np.float32)
+        x[:, COL["t"]] = s
+        x[:, COL["px"]] = px
+        x[:, COL["py"]] = py
+        x[:, COL["v_start"]] = v_start
+        x[:, 6:] = bounds
+        return self.model.evaluate_projection(x), len(px)
+
     def exact(self, pose: Pose, v_start: float, bounds: np.ndarray) -> FRTSet:
         """The model's set {V <= delta}, projected on (x, y), per slice and as tubes."""
         bounds = np.asarray(bounds, dtype=np.float32)
@@ -362,7 +379,10 @@ class FRTEngine:
             s = j * self.slice_dt
             xs, ys = self._grid(regions[j], resolution)
             gx, gy = np.meshgrid(xs, ys)
-            values, n = self.stencil_min(s, gx.ravel(), gy.ravel(), v_start, bounds, ob)
+            if self.use_projection:
+                values, n = self.projected_value(s, gx.ravel(), gy.ravel(), v_start, bounds)
+            else:
+                values, n = self.stencil_min(s, gx.ravel(), gy.ravel(), v_start, bounds, ob)
             values = values.reshape(gx.shape)
             evaluations += n
             slices.append(

@@ -76,9 +76,15 @@ def _session(path: Path, threads: int) -> ort.InferenceSession:
 class ValueModel:
     """V(x) for [N, 14] physical inputs, evaluated with onnxruntime on the CPU."""
 
-    def __init__(self, session: ort.InferenceSession, card: ModelCard) -> None:
+    def __init__(
+        self,
+        session: ort.InferenceSession,
+        card: ModelCard,
+        projection: ort.InferenceSession | None = None,
+    ) -> None:
         self.session = session
         self.card = card
+        self.projection = projection
         self._output = session.get_outputs()[0].name
 
     @classmethod
@@ -112,7 +118,14 @@ class ValueModel:
             if runtime.get("sha256") != file_sha256(fast_path):
                 raise ModelLoadError(f"sha256 of {fast_path.name} does not match the card")
             session = _session(fast_path, threads)
-        return cls(session, card)
+        projection = None
+        listed = raw.get("projection_graph") or {}
+        projection_path = onnx_path.parent / str(listed.get("file", ""))
+        if listed and projection_path.is_file():
+            if listed.get("sha256") != file_sha256(projection_path):
+                raise ModelLoadError(f"sha256 of {projection_path.name} does not match the card")
+            projection = _session(projection_path, threads)
+        return cls(session, card, projection)
 
     def evaluate(self, x: np.ndarray) -> np.ndarray:
         """Values at the rows of ``x`` ([N, 14], physical units, contract column order)."""
@@ -122,3 +135,12 @@ class ValueModel:
         if x.shape[0] == 0:
             return np.zeros(0, dtype=np.float32)
         return self.session.run([self._output], {INPUT_NAME: x})[0][:, 0]
+
+    def evaluate_projection(self, x: np.ndarray) -> np.ndarray:
+        """W, the distilled (x, y) projection (models/projection.py), at the rows of ``x``."""
+        if self.projection is None:
+            raise RuntimeError("this model has no projection graph")
+        x = np.ascontiguousarray(x, dtype=np.float32)
+        if x.shape[0] == 0:
+            return np.zeros(0, dtype=np.float32)
+        return self.projection.run(None, {INPUT_NAME: x})[0][:, 0]

@@ -1,0 +1,243 @@
+"""A small network for the (x, y) projection of the value function, distilled from the full one.
+
+K(s) = {(x, y): min over heading, speed of V(s, x, y, heading, speed) <= delta} (paper, "Safe
+Planning"). Evaluating that minimum with the full 14-D network costs ~9 evaluations per grid node;
+the service needs it on thousands of nodes per observation. This module distils
+
+    W(s, x, y; v_start, bounds) ~ min_stencil V(s, x, y, ., .; v_start, bounds)
+
+(the teacher is the engine's stencil minimum, ``FRTEngine.stencil_min``) into a small MLP on the
+same nominal-frame features, then calibrates its level against rollouts of the true dynamics, so the
+service's K is {W <= delta_W} with a scenario guarantee like the main network's.
+
+``python -m models.projection --model models/frt_unicycle.onnx`` writes
+``models/<name>.projection.onnx`` and records it in the card (``projection_graph``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import itertools
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+from tqdm import tqdm
+
+from models.contract import COL, HORIZON_S, INITIAL_SET, N_INPUTS
+from models.export_card import file_sha256, write_card
+from models.network import NominalFrame, asinh_by_logs
+from models.rollout import rk4_rollout, sample_control_schedules, sample_initial_states
+from models.sampling import sample_parameters
+
+
+class ProjectionNetwork(nn.Module):
+    """W: the 14 contract columns (heading and speed ignored) -> [N, 1], in metres.
+
+    Taking the contract layout keeps one input convention across graphs; the heading and speed
+    columns are ignored because W is their minimum.
+    """
+
+    def __init__(self, width: int = 96, depth: int = 3) -> None:
+        super().__init__()
+        self.frame = NominalFrame(12, HORIZON_S, INITIAL_SET)
+        layers: list[nn.Module] = []
+        width_in = 16
+        for _ in range(depth):
+            layers += [nn.Linear(width_in, width), nn.SiLU()]
+            width_in = width
+        self.mlp = nn.Sequential(*layers, nn.Linear(width_in, 1))
+        self.asinh = torch.asinh
+        self.width, self.depth = width, depth
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        nom = self.frame(x)
+        dx = x[:, COL["px"]] - nom["x"]
+        dy = x[:, COL["py"]] - nom["y"]
+        c, s = torch.cos(nom["heading"]), torch.sin(nom["heading"])
+        along, cross = c * dx + s * dy, -s * dx + c * dy
+        distance = torch.sqrt(along * along + cross * cross + 1e-12) - INITIAL_SET.radius_m
+        scale = INITIAL_SET.radius_m + nom["along_spread"] + nom["cross_spread"]
+        t = x[:, COL["t"]]
+        feats = torch.stack(
+            [
+                t / HORIZON_S,
+                self.asinh(along / nom["along_spread"]),
+                self.asinh(cross / nom["cross_spread"]),
+                along / 50.0,
+                cross / 50.0,
+                torch.log(nom["along_spread"]),
+                torch.log(nom["cross_spread"]),
+                torch.log(nom["heading_spread"]),
+                torch.log(nom["speed_spread"]),
+                nom["heading"] / math.pi,
+                nom["speed"] / 50.0,
+                x[:, COL["v_start"]] / 20.0,
+                x[:, COL["u1_min_start"]] / 2.0,
+                x[:, COL["u1_max_start"]] / 2.0,
+                x[:, COL["u2_min_start"]] / 10.0,
+                x[:, COL["u2_max_start"]] / 10.0,
+            ],
+            dim=1,
+        )
+        return (distance + (t / HORIZON_S) * scale * self.mlp(feats)[:, 0])[:, None]
+
+
+def _slice_times(slice_dt: float) -> np.ndarray:
+    return np.arange(1, round(HORIZON_S / slice_dt) + 1) * slice_dt
+
+
+def reachable_xy(
+    n_settings: int,
+    per_setting: int,
+    slice_dt: float,
+    rng: np.random.Generator,
+    times_per_setting: int = 4,
+) -> np.ndarray:
+    """Rows [n, 14] of states reached at slice times, from rollouts of the true dynamics.
+
+    Each setting gets ``times_per_setting`` slice times with ``per_setting // times_per_setting``
+    rollouts each, so rows come in blocks that share (setting, time).
+    """
+    block = max(per_setting // times_per_setting, 1)
+    params = np.repeat(sample_parameters(n_settings, rng), times_per_setting * block, axis=0)
+    n = len(params)
+    times = rng.choice(_slice_times(slice_dt), size=(n_settings * times_per_setting, 1))
+    t = np.repeat(times, block, axis=1).ravel()
+    start = sample_initial_states(params[:, COL["v_start"]], rng)
+    a1, a2, sw = sample_control_schedules(n, HORIZON_S, rng)
+    end, _ = rk4_rollout(start, params, t, a1, a2, sw * (t / HORIZON_S)[:, None], 60)
+    x = params.copy()
+    x[:, COL["t"]] = t
+    for name, value in zip(("px", "py", "heading", "speed"), end, strict=True):
+        x[:, COL[name]] = value
+    return x
+
+
+def blocks(rows: np.ndarray) -> list[tuple[int, int]]:
+    """Index ranges of consecutive rows that share the time and parameter columns."""
+    key = np.concatenate([rows[:, :1], rows[:, COL["v_start"] :]], axis=1)
+    change = np.any(np.diff(key, axis=0) != 0, axis=1)
+    edges = np.concatenate([[0], np.nonzero(change)[0] + 1, [len(rows)]])
+    return list(itertools.pairwise(edges))
+
+
+def teacher_dataset(engine, n_settings: int, per_setting: int, rng: np.random.Generator):
+    """(inputs, stencil-min targets): reachable points, perturbed ones and uniform outer-box ones."""
+    base = reachable_xy(n_settings, per_setting, engine.slice_dt, rng)
+    noise = 10 ** rng.uniform(-1.3, 0.8, len(base))
+    near = base.copy()
+    near[:, COL["px"]] += rng.normal(0, 1, len(base)) * noise
+    near[:, COL["py"]] += rng.normal(0, 1, len(base)) * noise
+    rows = np.concatenate([base, near])
+    targets = np.empty(len(rows), dtype=np.float32)
+    for a, b in tqdm(blocks(rows), desc="teacher", mininterval=5):
+        r = rows[a:b]
+        v_start, params = float(r[0, COL["v_start"]]), r[0, 6:].astype(np.float32)
+        ob = engine.outer(v_start, params)
+        targets[a:b], _ = engine.stencil_min(
+            float(r[0, COL["t"]]), r[:, COL["px"]], r[:, COL["py"]], v_start, params, ob
+        )
+    return rows.astype(np.float32), targets
+
+
+def train_projection(
+    x: np.ndarray, y: np.ndarray, steps: int, seed: int, over_weight: float = 4.0
+) -> ProjectionNetwork:
+    """Regression with a heavier penalty where W over-estimates the teacher (the unsafe side)."""
+    torch.manual_seed(seed)
+    net = ProjectionNetwork()
+    optimiser = torch.optim.Adam(net.parameters(), lr=2e-3)
+    xt, yt = torch.as_tensor(x), torch.as_tensor(y)
+    rng = np.random.default_rng(seed)
+    bar = tqdm(range(steps), desc="distil", mininterval=5)
+    for step in bar:
+        for group in optimiser.param_groups:
+            group["lr"] = 1e-5 + 0.5 * (2e-3 - 1e-5) * (1 + math.cos(math.pi * step / steps))
+        idx = torch.as_tensor(rng.integers(0, len(xt), 4096))
+        target = yt[idx].clamp(max=20.0)  # far-field values matter only in sign
+        err = net(xt[idx])[:, 0] - target
+        loss = torch.where(err > 0, over_weight * err * err, err * err).mean()
+        optimiser.zero_grad(set_to_none=True)
+        loss.backward()
+        optimiser.step()
+        if step % 100 == 0:
+            bar.set_postfix(loss=f"{loss.item():.4g}")
+    return net
+
+
+class _ExportGraph(nn.Module):
+    def __init__(self, net: ProjectionNetwork) -> None:
+        super().__init__()
+        self.net = copy.deepcopy(net).eval()
+        self.net.asinh = asinh_by_logs
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.net(x)
+
+
+def export_projection(net: ProjectionNetwork, path: Path) -> None:
+    from models.export import OPSET
+
+    example = torch.zeros(4, N_INPUTS)
+    torch.onnx.export(
+        _ExportGraph(net),
+        (example,),
+        str(path),
+        input_names=["x"],
+        output_names=["value"],
+        dynamic_axes={"x": {0: "N"}, "value": {0: "N"}},
+        opset_version=OPSET,
+        dynamo=False,
+    )
+
+
+def main() -> None:
+    from service.engine import FRTEngine
+    from service.model_runtime import ValueModel
+
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--model", type=Path, default=Path("models/frt_unicycle.onnx"))
+    parser.add_argument("--settings", type=int, default=3000)
+    parser.add_argument("--per-setting", type=int, default=64)
+    parser.add_argument("--steps", type=int, default=6000)
+    parser.add_argument("--calibration-settings", type=int, default=2000)
+    parser.add_argument("--seed", type=int, default=11)
+    args = parser.parse_args()
+    started = time.monotonic()
+    rng = np.random.default_rng(args.seed)
+    model = ValueModel.load(args.model, threads=2)
+    engine = FRTEngine(model, projection=False)
+    x, y = teacher_dataset(engine, args.settings, args.per_setting, rng)
+    net = train_projection(x, y, args.steps, args.seed)
+    # Calibrate the level on fresh reachable points of the true dynamics (scenario optimisation).
+    reach = reachable_xy(args.calibration_settings, 64, engine.slice_dt, rng).astype(np.float32)
+    with torch.no_grad():
+        w = net(torch.as_tensor(reach)).numpy()[:, 0]
+    level = float(w.max())
+    path = args.model.with_name(args.model.stem + ".projection.onnx")
+    export_projection(net, path)
+    card = json.loads(args.model.with_suffix(".json").read_text())
+    card["projection_graph"] = {
+        "file": path.name,
+        "sha256": file_sha256(path),
+        "delta": level,
+        "calibration_samples": len(reach),
+        "teacher": "FRTEngine.stencil_min of the runtime graph",
+        "architecture": {"width": net.width, "depth": net.depth, "activation": "SiLU"},
+        "distillation_samples": len(x),
+        "steps": args.steps,
+        "time_s": round(time.monotonic() - started, 1),
+        "quantiles_at_reachable": {q: float(np.quantile(w, float(q))) for q in ("0.5", "0.99")},
+    }
+    write_card(card, args.model)
+    print(json.dumps(card["projection_graph"], indent=2))
+
+
+if __name__ == "__main__":
+    main()

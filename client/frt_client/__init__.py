@@ -1,0 +1,99 @@
+"""Python SDK of the FRT service: forward reachable tubes of human-driven cars, for planners.
+
+>>> from frt_client import FRTClient
+>>> with FRTClient("http://127.0.0.1:8000") as frt:          # doctest: +SKIP
+...     frt.observe("car-1", timestamp=0.0, state=(0, 0, 0, 5), prediction=pred)
+...     frt.collision_check("car-1", [(0.5, 8.0, 0.0)]).collision
+
+:class:`FRTClient` (blocking) and :class:`AsyncFRTClient` (asyncio) have the same methods; their
+``stream()`` opens a WebSocket session with the same operations for 10-20 Hz loops. Errors are
+subclasses of :class:`FRTError` (see :mod:`frt_client.errors`). numpy arrays are accepted wherever
+lists are, but numpy is not required.
+"""
+
+from frt_client.async_client import AsyncFRTClient
+from frt_client.async_stream import AsyncStream
+from frt_client.client import FRTClient
+from frt_client.errors import (
+    AuthError,
+    ConflictError,
+    DeadlineError,
+    FRTError,
+    NotFoundError,
+    PayloadTooLargeError,
+    ServerError,
+    UnavailableError,
+    ValidationError,
+)
+from frt_client.inputs import (
+    BOUND_COLUMNS,
+    AgentConfig,
+    HumanState,
+    ObservedAction,
+    Prediction,
+    TrajectoryPoint,
+)
+from frt_client.models import (
+    Agent,
+    AgentContours,
+    Belief,
+    CollisionAnswer,
+    CollisionCheck,
+    ContourPair,
+    ContourSet,
+    ContourSlice,
+    ControlBounds,
+    DeleteResult,
+    EffectiveConfig,
+    FRTResult,
+    Health,
+    ModelCard,
+    MultiCollisionCheck,
+    ObservationResult,
+    Readiness,
+)
+from frt_client.retry import NO_RETRY, RetryPolicy
+from frt_client.stream import Stream
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "BOUND_COLUMNS",
+    "NO_RETRY",
+    "Agent",
+    "AgentConfig",
+    "AgentContours",
+    "AsyncFRTClient",
+    "AsyncStream",
+    "AuthError",
+    "Belief",
+    "CollisionAnswer",
+    "CollisionCheck",
+    "ConflictError",
+    "ContourPair",
+    "ContourSet",
+    "ContourSlice",
+    "ControlBounds",
+    "DeadlineError",
+    "DeleteResult",
+    "EffectiveConfig",
+    "FRTClient",
+    "FRTError",
+    "FRTResult",
+    "Health",
+    "HumanState",
+    "ModelCard",
+    "MultiCollisionCheck",
+    "NotFoundError",
+    "ObservationResult",
+    "ObservedAction",
+    "PayloadTooLargeError",
+    "Prediction",
+    "Readiness",
+    "RetryPolicy",
+    "ServerError",
+    "Stream",
+    "TrajectoryPoint",
+    "UnavailableError",
+    "ValidationError",
+]

@@ -1,0 +1,244 @@
+"""The operations of the API, described once, without I/O ("sans-IO").
+
+Each function turns a method's arguments into a :class:`Call`: the HTTP request (method, path,
+query, JSON body), the same operation as a ``WS /v1/stream`` message, the response type, and
+whether the call is idempotent (safe to send twice). :class:`~frt_client.FRTClient`,
+:class:`~frt_client.AsyncFRTClient` and the streams only execute calls, so the three stay in step.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Any, Generic, TypeVar
+from urllib.parse import quote
+
+from frt_client import inputs
+from frt_client.errors import ValidationError
+from frt_client.models import (
+    Agent,
+    AgentContours,
+    CollisionCheck,
+    DeleteResult,
+    FRTResult,
+    Health,
+    ModelCard,
+    MultiCollisionCheck,
+    ObservationResult,
+    Readiness,
+    Response,
+)
+
+T = TypeVar("T", bound=Response)
+
+
+@dataclass(frozen=True)
+class Call(Generic[T]):
+    """One operation: how to send it over HTTP and over the stream, and what comes back."""
+
+    method: str
+    path: str
+    model: type[T]
+    #: Safe to repeat: reads, checks and deletes. Observations are not (they move the filter).
+    idempotent: bool
+    json: dict[str, Any] | None = None
+    params: dict[str, Any] | None = None
+    #: The ``op`` of the stream message, or ``None`` if the stream has no such operation.
+    op: str | None = None
+    #: The stream message's fields besides ``id`` and ``op``.
+    message: dict[str, Any] = field(default_factory=dict)
+    #: HTTP error statuses whose body is still a valid answer (``/readyz`` answers 503 + body).
+    ok_statuses: tuple[int, ...] = ()
+
+
+def _agent_path(agent_id: str, suffix: str = "") -> str:
+    if not isinstance(agent_id, str) or not agent_id:
+        raise ValidationError("agent_id must be a non-empty string", field="agent_id")
+    return f"/v1/agents/{quote(agent_id, safe='')}{suffix}"
+
+
+def observe(
+    agent_id: str,
+    *,
+    timestamp: float,
+    state: Any,
+    prediction: Any,
+    observed_action: Any = None,
+    config: Any = None,
+) -> Call[ObservationResult]:
+    body = inputs.without_none(
+        {
+            "timestamp": inputs.plain(timestamp),
+            "state": inputs.state(state),
+            "observed_action": inputs.action(observed_action),
+            "prediction": inputs.prediction(prediction),
+            "config": inputs.config(config),
+        }
+    )
+    return Call(
+        "POST",
+        _agent_path(agent_id, "/observations"),
+        ObservationResult,
+        idempotent=False,
+        json=body,
+        op="observe",
+        message={"agent_id": agent_id, **body},
+    )
+
+
+def get_agent(agent_id: str) -> Call[Agent]:
+    return Call(
+        "GET",
+        _agent_path(agent_id),
+        Agent,
+        idempotent=True,
+        op="get_agent",
+        message={"agent_id": agent_id},
+    )
+
+
+def delete_agent(agent_id: str) -> Call[DeleteResult]:
+    return Call(
+        "DELETE",
+        _agent_path(agent_id),
+        DeleteResult,
+        idempotent=True,
+        op="delete_agent",
+        message={"agent_id": agent_id},
+    )
+
+
+def _check_body(
+    trajectory: Any, mode: str, collision_radius: float | None, deadline_ms: float | None
+) -> dict[str, Any]:
+    return inputs.without_none(
+        {
+            "trajectory": inputs.trajectory(trajectory),
+            "mode": mode,
+            "collision_radius": inputs.plain(collision_radius),
+            "deadline_ms": inputs.plain(deadline_ms),
+        }
+    )
+
+
+def collision_check(
+    agent_id: str,
+    trajectory: Any,
+    *,
+    mode: str = "tube",
+    collision_radius: float | None = None,
+    deadline_ms: float | None = None,
+) -> Call[CollisionCheck]:
+    body = _check_body(trajectory, mode, collision_radius, deadline_ms)
+    return Call(
+        "POST",
+        _agent_path(agent_id, "/collision-check"),
+        CollisionCheck,
+        idempotent=True,
+        json=body,
+        op="collision_check",
+        message={"agent_id": agent_id, **body},
+    )
+
+
+def collision_check_many(
+    trajectory: Any,
+    agent_ids: Iterable[str] | None = None,
+    *,
+    mode: str = "tube",
+    collision_radius: float | None = None,
+    deadline_ms: float | None = None,
+) -> Call[MultiCollisionCheck]:
+    body = _check_body(trajectory, mode, collision_radius, deadline_ms)
+    # An explicit null means "every known agent"; an empty list means none.
+    body["agent_ids"] = None if agent_ids is None else [str(a) for a in agent_ids]
+    return Call(
+        "POST",
+        "/v1/collision-check",
+        MultiCollisionCheck,
+        idempotent=True,
+        json=body,
+        op="collision_check",
+        message=body,
+    )
+
+
+def contours(
+    agent_id: str,
+    *,
+    slices: Iterable[float] = (),
+    include: Iterable[str] = ("K", "C"),
+    tube: bool = True,
+    collision_radius: float | None = None,
+) -> Call[AgentContours]:
+    times = [float(t) for t in inputs.plain(slices)]
+    parts = list(include)
+    params: dict[str, Any] = {"include": ",".join(parts), "tube": "true" if tube else "false"}
+    if times:
+        params["slices"] = ",".join(repr(t) for t in times)
+    if collision_radius is not None:
+        params["collision_radius"] = repr(float(collision_radius))
+    message = inputs.without_none(
+        {
+            "agent_id": agent_id,
+            "slices": times,
+            "include": parts,
+            "tube": tube,
+            "collision_radius": collision_radius,
+        }
+    )
+    return Call(
+        "GET",
+        _agent_path(agent_id, "/frt"),
+        AgentContours,
+        idempotent=True,
+        params=params,
+        op="frt",
+        message=message,
+    )
+
+
+def frt(
+    state: Any,
+    *,
+    control_bounds: Any = None,
+    prediction: Any = None,
+    beta: float | None = None,
+    gamma: float | None = None,
+    bounds_fit: str | None = None,
+    collision_radius: float | None = None,
+    contours: dict[str, Any] | None = None,
+    trajectory: Any = None,
+    mode: str = "tube",
+    deadline_ms: float | None = None,
+    timestamp: float = 0.0,
+) -> Call[FRTResult]:
+    body = inputs.without_none(
+        {
+            "timestamp": inputs.plain(timestamp),
+            "state": inputs.state(state),
+            "control_bounds": None if control_bounds is None else inputs.bounds(control_bounds),
+            "prediction": None if prediction is None else inputs.prediction(prediction),
+            "beta": inputs.plain(beta),
+            "gamma": inputs.plain(gamma),
+            "bounds_fit": bounds_fit,
+            "collision_radius": inputs.plain(collision_radius),
+            "contours": None if contours is None else inputs.plain(contours),
+            "trajectory": None if trajectory is None else inputs.trajectory(trajectory),
+            "mode": mode,
+            "deadline_ms": inputs.plain(deadline_ms),
+        }
+    )
+    return Call("POST", "/v1/frt", FRTResult, idempotent=True, json=body, op="frt", message=body)
+
+
+def model() -> Call[ModelCard]:
+    return Call("GET", "/v1/model", ModelCard, idempotent=True)
+
+
+def health() -> Call[Health]:
+    return Call("GET", "/healthz", Health, idempotent=True)
+
+
+def ready() -> Call[Readiness]:
+    return Call("GET", "/readyz", Readiness, idempotent=True, ok_statuses=(503,))

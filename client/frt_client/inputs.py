@@ -1,0 +1,187 @@
+"""Request parts, and their conversion from whatever a planner has at hand to JSON.
+
+Every method of the clients accepts, for each part, either the typed model below, a plain dict with
+the same keys, or a bare sequence (a list, a tuple, or a numpy array; anything with ``.tolist()`` is
+converted with it, so numpy stays optional):
+
+- a state ``(x, y, heading, speed)``; an action ``(steering_rate, acceleration)``;
+- a prediction ``{"dt": 0.1, "mean": (S, 2) array, "cov": (S, 2, 2) array}``;
+- a trajectory ``(N, 3)`` of rows ``(t, x, y)``, or a list of ``{"t", "x", "y"}`` points;
+- control bounds: eight numbers in the model contract's order (see :data:`BOUND_COLUMNS`).
+
+The SDK only reshapes and type-checks; ranges, shapes and positive definiteness are the service's to
+judge (its 422 names the field). A part the SDK cannot even reshape raises
+:class:`~frt_client.errors.ValidationError` with ``status=None``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import pydantic
+from pydantic import BaseModel, ConfigDict, field_validator
+
+from frt_client.errors import ValidationError
+from frt_client.models import BoundsFit, ControlBounds
+
+#: The eight control-bound columns, in the model contract's order.
+BOUND_COLUMNS: tuple[str, ...] = (
+    "u1_min_start",
+    "u2_min_start",
+    "u1_min_end",
+    "u2_min_end",
+    "u1_max_start",
+    "u2_max_start",
+    "u1_max_end",
+    "u2_max_end",
+)
+
+
+def plain(value: Any) -> Any:
+    """``value`` as JSON-ready Python: arrays and numpy scalars via ``.tolist()``, models dumped."""
+    if isinstance(value, BaseModel):
+        return value.model_dump(mode="json", exclude_none=True)
+    if hasattr(value, "tolist") and not isinstance(value, str | bytes):
+        return value.tolist()
+    if isinstance(value, Mapping):
+        return {str(k): plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [plain(v) for v in value]
+    return value
+
+
+class Part(BaseModel):
+    """Base of the request parts: no unknown keys, numpy arrays accepted."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _numpy_to_lists(cls, value: Any) -> Any:
+        return plain(value)
+
+
+class HumanState(Part):
+    """The human's state in the world frame: metres, radians from +x (CCW), m/s."""
+
+    x: float
+    y: float
+    heading: float
+    speed: float
+
+
+class ObservedAction(Part):
+    """The action the human took since the previous observation: rad/s and m/s²."""
+
+    steering_rate: float
+    acceleration: float
+
+
+class Prediction(Part):
+    """A predictor's Gaussian over the controls, one step of ``dt`` seconds per row.
+
+    ``mean`` is ``(S, 2)`` (steering rate, acceleration); ``cov`` is ``(S, 2, 2)``.
+    """
+
+    dt: float
+    mean: list[list[float]]
+    cov: list[list[list[float]]]
+
+
+class AgentConfig(Part):
+    """Per-agent settings; omitted fields keep the agent's (or the server's) values."""
+
+    beta_low: float | None = None
+    gamma: float | None = None
+    epsilon: float | None = None
+    collision_radius: float | None = None
+    bounds_fit: BoundsFit | None = None
+
+
+class TrajectoryPoint(Part):
+    """A robot position at time ``t`` (seconds, on the observations' clock)."""
+
+    t: float
+    x: float
+    y: float
+
+
+def _model(cls: type[Part], value: Any, name: str, fields: Sequence[str]) -> dict[str, Any]:
+    """``value`` (a model, mapping or sequence in ``fields`` order) validated as ``cls``, dumped."""
+    if isinstance(value, cls):
+        return value.model_dump(mode="json", exclude_none=True)
+    data = plain(value)
+    if isinstance(data, list):
+        if len(data) != len(fields):
+            raise ValidationError(
+                f"{name}: expected {len(fields)} numbers ({', '.join(fields)}), got {len(data)}",
+                field=name,
+            )
+        data = dict(zip(fields, data, strict=True))
+    try:
+        return cls.model_validate(data).model_dump(mode="json", exclude_none=True)
+    except pydantic.ValidationError as exc:
+        raise ValidationError(f"{name}: {exc}", field=name, detail=exc.errors()) from None
+
+
+def state(value: Any) -> dict[str, Any]:
+    """A :class:`HumanState`, a mapping, or ``(x, y, heading, speed)``."""
+    return _model(HumanState, value, "state", ("x", "y", "heading", "speed"))
+
+
+def action(value: Any) -> dict[str, Any] | None:
+    """An :class:`ObservedAction`, a mapping, ``(steering_rate, acceleration)``, or ``None``."""
+    if value is None:
+        return None
+    return _model(ObservedAction, value, "observed_action", ("steering_rate", "acceleration"))
+
+
+def prediction(value: Any) -> dict[str, Any]:
+    """A :class:`Prediction`, or a mapping with ``dt``, ``mean`` and ``cov``."""
+    return _model(Prediction, value, "prediction", ("dt", "mean", "cov"))
+
+
+def config(value: Any) -> dict[str, Any] | None:
+    """An :class:`AgentConfig`, a mapping, or ``None``."""
+    if value is None:
+        return None
+    return _model(AgentConfig, value, "config", ())
+
+
+def bounds(value: Any) -> dict[str, Any]:
+    """Control bounds: a model or mapping with the eight columns, or eight numbers in order."""
+    if isinstance(value, ControlBounds):
+        return value.model_dump(mode="json")
+    data = plain(value)
+    if isinstance(data, list):
+        if len(data) != len(BOUND_COLUMNS):
+            raise ValidationError(
+                f"control_bounds: expected 8 numbers, got {len(data)}", field="control_bounds"
+            )
+        data = dict(zip(BOUND_COLUMNS, data, strict=True))
+    if not isinstance(data, dict):
+        raise ValidationError(
+            "control_bounds: expected 8 numbers or a mapping", field="control_bounds"
+        )
+    return data
+
+
+def trajectory(value: Any) -> list[dict[str, Any]]:
+    """Points as ``(N, 3)`` rows ``(t, x, y)``, or :class:`TrajectoryPoint` s, or mappings."""
+    if isinstance(value, BaseModel):
+        value = [value]
+    data = value.tolist() if hasattr(value, "tolist") else value
+    if isinstance(data, Mapping) or not isinstance(data, Sequence) or isinstance(data, str):
+        raise ValidationError(
+            "trajectory: expected a sequence of (t, x, y) points", field="trajectory"
+        )
+    return [
+        _model(TrajectoryPoint, point, f"trajectory.{i}", ("t", "x", "y"))
+        for i, point in enumerate(data)
+    ]
+
+
+def without_none(body: Mapping[str, Any]) -> dict[str, Any]:
+    """``body`` without its ``None`` values (the service then applies its defaults)."""
+    return {k: v for k, v in body.items() if v is not None}

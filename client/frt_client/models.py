@@ -1,0 +1,188 @@
+"""Typed responses of the service (pydantic v2), mirroring ``/openapi.json`` without importing it.
+
+Responses ignore fields they do not know, so a newer service does not break an older SDK. Units are
+SI throughout: metres, seconds, radians, m/s, m/s². GeoJSON geometries are plain dicts
+(``{"type": "Polygon", "coordinates": ...}``) in the caller's world frame.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+Mode = Literal["tube", "time_indexed"]
+Part = Literal["K", "C"]
+BoundsFit = Literal["envelope", "endpoints"]
+#: A GeoJSON geometry object (``Polygon`` or ``MultiPolygon``) in the world frame.
+GeoJSON = dict[str, Any]
+
+
+class Response(BaseModel):
+    """Base of every response: unknown fields are ignored, instances are read-only."""
+
+    model_config = ConfigDict(extra="ignore", frozen=True)
+
+
+class Belief(Response):
+    """Probability of each hypothesis (or, in ``Agent.hypotheses``, the two β values)."""
+
+    beta_low: float
+    beta_high: float
+
+
+class ControlBounds(Response):
+    """Start and end control bounds, linearly interpolated over the horizon (model order)."""
+
+    u1_min_start: float
+    u2_min_start: float
+    u1_min_end: float
+    u2_min_end: float
+    u1_max_start: float
+    u2_max_start: float
+    u1_max_end: float
+    u2_max_end: float
+
+
+class EffectiveConfig(Response):
+    """The settings in force for one agent (its overrides, else the server's)."""
+
+    beta_low: float
+    beta_high: float
+    gamma: float
+    epsilon: float
+    collision_radius: float
+    bounds_fit: str
+
+
+class ObservationResult(Response):
+    """Answer to :meth:`FRTClient.observe`."""
+
+    agent_id: str
+    timestamp: float
+    beta: float
+    belief: Belief
+    control_bounds: ControlBounds
+    frt_version: int
+    action_scored: bool = False
+
+
+class Agent(Response):
+    """Answer to :meth:`FRTClient.get_agent`: what the service holds for one human."""
+
+    agent_id: str
+    timestamp: float
+    state: dict[str, float] = Field(default_factory=dict)
+    beta: float
+    belief: Belief
+    hypotheses: Belief | None = None
+    control_bounds: ControlBounds
+    frt_version: int
+    frt_ready: bool = False
+    config: EffectiveConfig | None = None
+
+
+class DeleteResult(Response):
+    agent_id: str
+    deleted: bool
+
+
+class CollisionAnswer(Response):
+    """Whether a trajectory enters the unsafe set C = K ⊕ R_col, and where."""
+
+    collision: bool
+    first_collision_index: int | None = None
+    first_collision_time: float | None = None
+    #: Distance to K minus R_col per trajectory point; negative inside C.
+    clearance: list[float] = Field(default_factory=list)
+
+
+class CollisionCheck(CollisionAnswer):
+    """Answer to :meth:`FRTClient.collision_check` for one agent."""
+
+    agent_id: str
+    mode: Mode
+    collision_radius: float
+    beta: float
+    frt_version: int
+    #: True when answered from a set containing the exact one (the exact set was not ready in time).
+    conservative: bool
+    #: Time after which the FRT says nothing.
+    horizon_end: float | None = None
+
+
+class MultiCollisionCheck(Response):
+    """Answer to :meth:`FRTClient.collision_check_many`."""
+
+    collision: bool
+    conservative: bool
+    results: list[CollisionCheck]
+    #: Requested agents the service does not know.
+    missing: list[str] = Field(default_factory=list)
+
+    def by_agent(self) -> dict[str, CollisionCheck]:
+        """The per-agent results keyed by agent id."""
+        return {r.agent_id: r for r in self.results}
+
+
+class ContourPair(Response):
+    K: GeoJSON | None = None
+    C: GeoJSON | None = None
+
+
+class ContourSlice(ContourPair):
+    #: Seconds after the observation.
+    t: float
+    #: The same instant on the observations' clock.
+    time: float | None = None
+
+
+class ContourSet(Response):
+    tube: ContourPair | None = None
+    slices: list[ContourSlice] = Field(default_factory=list)
+
+
+class AgentContours(ContourSet):
+    """Answer to :meth:`FRTClient.contours`: K and C of one agent as GeoJSON."""
+
+    agent_id: str
+    frt_version: int
+    timestamp: float
+    horizon_s: float
+    collision_radius: float
+    conservative: bool
+
+
+class FRTResult(Response):
+    """Answer to the stateless :meth:`FRTClient.frt`."""
+
+    control_bounds: ControlBounds
+    beta: float | None = None
+    horizon_s: float
+    collision_radius: float
+    conservative: bool
+    contours: ContourSet | None = None
+    collision: CollisionAnswer | None = None
+
+
+class ModelCard(Response):
+    """Answer to :meth:`FRTClient.model`: the served network's card."""
+
+    name: str
+    semantics: str
+    delta: float
+    horizon_s: float
+    ranges: dict[str, list[float]] = Field(default_factory=dict)
+    initial_set: dict[str, Any] = Field(default_factory=dict)
+    #: The whole model card as the service has it.
+    card: dict[str, Any] = Field(default_factory=dict)
+
+
+class Health(Response):
+    status: str
+
+
+class Readiness(Response):
+    ready: bool
+    model: str | None = None
+    detail: str | None = None

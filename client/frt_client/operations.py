@@ -1,0 +1,352 @@
+"""The operations shared by a client and its stream, in a blocking and an async flavour.
+
+:class:`Operations` (blocking) and :class:`AsyncOperations` have the same methods with the same
+arguments; each builds a :class:`~frt_client.calls.Call` and hands it to ``send``, which the
+HTTP clients and the WebSocket streams implement. Every method raises a subclass of
+:class:`~frt_client.errors.FRTError` on failure.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from typing import Any, TypeVar
+
+from frt_client import calls
+from frt_client.calls import Call
+from frt_client.models import (
+    Agent,
+    AgentContours,
+    CollisionCheck,
+    DeleteResult,
+    FRTResult,
+    Mode,
+    MultiCollisionCheck,
+    ObservationResult,
+    Response,
+)
+
+T = TypeVar("T", bound=Response)
+
+
+class Operations:
+    """The API's operations, blocking. Subclasses implement :meth:`send`."""
+
+    def send(self, call: Call[T]) -> T:
+        """Execute one call and return its typed result."""
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ agents
+    def observe(
+        self,
+        agent_id: str,
+        *,
+        timestamp: float,
+        state: Any,
+        prediction: Any,
+        observed_action: Any = None,
+        config: Any = None,
+    ) -> ObservationResult:
+        """Report a new observation of one human; never sent twice (see :mod:`frt_client.retry`).
+
+        Args:
+            agent_id: the caller's id of the human (1-128 of ``[A-Za-z0-9_.:-]``).
+            timestamp: seconds on the caller's clock; must increase per agent (else 409).
+            state: ``(x, y, heading, speed)``, a mapping, or :class:`~frt_client.HumanState`.
+            prediction: ``{"dt", "mean": (S, 2), "cov": (S, 2, 2)}`` or
+                :class:`~frt_client.Prediction`; arrays may be numpy.
+            observed_action: ``(steering_rate, acceleration)`` taken since the previous
+                observation, scored against the first step of the previous prediction;
+                ``None`` on the first observation.
+            config: per-agent settings (:class:`~frt_client.AgentConfig` or mapping), from now on.
+        """
+        return self.send(
+            calls.observe(
+                agent_id,
+                timestamp=timestamp,
+                state=state,
+                prediction=prediction,
+                observed_action=observed_action,
+                config=config,
+            )
+        )
+
+    def get_agent(self, agent_id: str) -> Agent:
+        """The agent's β, belief, control bounds, last timestamp, FRT version and config."""
+        return self.send(calls.get_agent(agent_id))
+
+    def delete_agent(self, agent_id: str) -> DeleteResult:
+        """Forget the agent (404 if unknown)."""
+        return self.send(calls.delete_agent(agent_id))
+
+    # ------------------------------------------------------------------ checks
+    def collision_check(
+        self,
+        agent_id: str,
+        trajectory: Any,
+        *,
+        mode: Mode = "tube",
+        collision_radius: float | None = None,
+        deadline_ms: float | None = None,
+    ) -> CollisionCheck:
+        """Does the robot ``trajectory`` enter the agent's unsafe set C = K ⊕ R_col?
+
+        Args:
+            trajectory: ``(N, 3)`` rows ``(t, x, y)`` (t on the observations' clock), or points.
+            mode: ``"tube"`` (every point against the whole horizon) or ``"time_indexed"``.
+            collision_radius: R_col in metres; default the agent's.
+            deadline_ms: the service answers within it, conservatively if need be.
+        """
+        return self.send(
+            calls.collision_check(
+                agent_id,
+                trajectory,
+                mode=mode,
+                collision_radius=collision_radius,
+                deadline_ms=deadline_ms,
+            )
+        )
+
+    def collision_check_many(
+        self,
+        trajectory: Any,
+        agent_ids: Iterable[str] | None = None,
+        *,
+        mode: Mode = "tube",
+        collision_radius: float | None = None,
+        deadline_ms: float | None = None,
+    ) -> MultiCollisionCheck:
+        """The same check against several agents in one call; ``agent_ids=None`` checks all."""
+        return self.send(
+            calls.collision_check_many(
+                trajectory,
+                agent_ids,
+                mode=mode,
+                collision_radius=collision_radius,
+                deadline_ms=deadline_ms,
+            )
+        )
+
+    # ------------------------------------------------------------------ sets
+    def contours(
+        self,
+        agent_id: str,
+        *,
+        slices: Iterable[float] = (),
+        include: Iterable[str] = ("K", "C"),
+        tube: bool = True,
+        collision_radius: float | None = None,
+    ) -> AgentContours:
+        """GeoJSON contours of the agent's K and C: the whole-horizon tube and time slices.
+
+        Args:
+            slices: seconds after the last observation, each in ``[0, horizon]``.
+            include: any of ``"K"`` (the FRT) and ``"C"`` (K inflated by R_col).
+            tube: include the whole-horizon tube.
+        """
+        return self.send(
+            calls.contours(
+                agent_id,
+                slices=slices,
+                include=include,
+                tube=tube,
+                collision_radius=collision_radius,
+            )
+        )
+
+    def frt(
+        self,
+        state: Any,
+        *,
+        control_bounds: Any = None,
+        prediction: Any = None,
+        beta: float | None = None,
+        gamma: float | None = None,
+        bounds_fit: str | None = None,
+        collision_radius: float | None = None,
+        contours: dict[str, Any] | None = None,
+        trajectory: Any = None,
+        mode: Mode = "tube",
+        deadline_ms: float | None = None,
+        timestamp: float = 0.0,
+    ) -> FRTResult:
+        """The stateless FRT: give ``control_bounds`` (eight numbers or a mapping), or a
+        ``prediction`` and ``beta``; get contours (``contours={"slices": [...], "include":
+        [...], "tube": bool}``) and/or a check of ``trajectory``. No agent is kept."""
+        return self.send(
+            calls.frt(
+                state,
+                control_bounds=control_bounds,
+                prediction=prediction,
+                beta=beta,
+                gamma=gamma,
+                bounds_fit=bounds_fit,
+                collision_radius=collision_radius,
+                contours=contours,
+                trajectory=trajectory,
+                mode=mode,
+                deadline_ms=deadline_ms,
+                timestamp=timestamp,
+            )
+        )
+
+
+class AsyncOperations:
+    """The API's operations, as coroutines. Subclasses implement :meth:`send`."""
+
+    async def send(self, call: Call[T]) -> T:
+        """Execute one call and return its typed result."""
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ agents
+    async def observe(
+        self,
+        agent_id: str,
+        *,
+        timestamp: float,
+        state: Any,
+        prediction: Any,
+        observed_action: Any = None,
+        config: Any = None,
+    ) -> ObservationResult:
+        """Report a new observation of one human; never sent twice (see :mod:`frt_client.retry`).
+
+        Args:
+            agent_id: the caller's id of the human (1-128 of ``[A-Za-z0-9_.:-]``).
+            timestamp: seconds on the caller's clock; must increase per agent (else 409).
+            state: ``(x, y, heading, speed)``, a mapping, or :class:`~frt_client.HumanState`.
+            prediction: ``{"dt", "mean": (S, 2), "cov": (S, 2, 2)}`` or
+                :class:`~frt_client.Prediction`; arrays may be numpy.
+            observed_action: ``(steering_rate, acceleration)`` taken since the previous
+                observation, scored against the first step of the previous prediction;
+                ``None`` on the first observation.
+            config: per-agent settings (:class:`~frt_client.AgentConfig` or mapping), from now on.
+        """
+        return await self.send(
+            calls.observe(
+                agent_id,
+                timestamp=timestamp,
+                state=state,
+                prediction=prediction,
+                observed_action=observed_action,
+                config=config,
+            )
+        )
+
+    async def get_agent(self, agent_id: str) -> Agent:
+        """The agent's β, belief, control bounds, last timestamp, FRT version and config."""
+        return await self.send(calls.get_agent(agent_id))
+
+    async def delete_agent(self, agent_id: str) -> DeleteResult:
+        """Forget the agent (404 if unknown)."""
+        return await self.send(calls.delete_agent(agent_id))
+
+    # ------------------------------------------------------------------ checks
+    async def collision_check(
+        self,
+        agent_id: str,
+        trajectory: Any,
+        *,
+        mode: Mode = "tube",
+        collision_radius: float | None = None,
+        deadline_ms: float | None = None,
+    ) -> CollisionCheck:
+        """Does the robot ``trajectory`` enter the agent's unsafe set C = K ⊕ R_col?
+
+        Args:
+            trajectory: ``(N, 3)`` rows ``(t, x, y)`` (t on the observations' clock), or points.
+            mode: ``"tube"`` (every point against the whole horizon) or ``"time_indexed"``.
+            collision_radius: R_col in metres; default the agent's.
+            deadline_ms: the service answers within it, conservatively if need be.
+        """
+        return await self.send(
+            calls.collision_check(
+                agent_id,
+                trajectory,
+                mode=mode,
+                collision_radius=collision_radius,
+                deadline_ms=deadline_ms,
+            )
+        )
+
+    async def collision_check_many(
+        self,
+        trajectory: Any,
+        agent_ids: Iterable[str] | None = None,
+        *,
+        mode: Mode = "tube",
+        collision_radius: float | None = None,
+        deadline_ms: float | None = None,
+    ) -> MultiCollisionCheck:
+        """The same check against several agents in one call; ``agent_ids=None`` checks all."""
+        return await self.send(
+            calls.collision_check_many(
+                trajectory,
+                agent_ids,
+                mode=mode,
+                collision_radius=collision_radius,
+                deadline_ms=deadline_ms,
+            )
+        )
+
+    # ------------------------------------------------------------------ sets
+    async def contours(
+        self,
+        agent_id: str,
+        *,
+        slices: Iterable[float] = (),
+        include: Iterable[str] = ("K", "C"),
+        tube: bool = True,
+        collision_radius: float | None = None,
+    ) -> AgentContours:
+        """GeoJSON contours of the agent's K and C: the whole-horizon tube and time slices.
+
+        Args:
+            slices: seconds after the last observation, each in ``[0, horizon]``.
+            include: any of ``"K"`` (the FRT) and ``"C"`` (K inflated by R_col).
+            tube: include the whole-horizon tube.
+        """
+        return await self.send(
+            calls.contours(
+                agent_id,
+                slices=slices,
+                include=include,
+                tube=tube,
+                collision_radius=collision_radius,
+            )
+        )
+
+    async def frt(
+        self,
+        state: Any,
+        *,
+        control_bounds: Any = None,
+        prediction: Any = None,
+        beta: float | None = None,
+        gamma: float | None = None,
+        bounds_fit: str | None = None,
+        collision_radius: float | None = None,
+        contours: dict[str, Any] | None = None,
+        trajectory: Any = None,
+        mode: Mode = "tube",
+        deadline_ms: float | None = None,
+        timestamp: float = 0.0,
+    ) -> FRTResult:
+        """The stateless FRT: give ``control_bounds`` (eight numbers or a mapping), or a
+        ``prediction`` and ``beta``; get contours (``contours={"slices": [...], "include":
+        [...], "tube": bool}``) and/or a check of ``trajectory``. No agent is kept."""
+        return await self.send(
+            calls.frt(
+                state,
+                control_bounds=control_bounds,
+                prediction=prediction,
+                beta=beta,
+                gamma=gamma,
+                bounds_fit=bounds_fit,
+                collision_radius=collision_radius,
+                contours=contours,
+                trajectory=trajectory,
+                mode=mode,
+                deadline_ms=deadline_ms,
+                timestamp=timestamp,
+            )
+        )

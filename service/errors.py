@@ -1,0 +1,156 @@
+"""Errors of the API and their JSON shape.
+
+Every error body has a ``detail``; a 422 also names the offending ``field`` (dotted, e.g.
+``prediction.cov.2``) and carries FastAPI's list of ``{loc, msg, type}``. Nothing a client sends may
+produce a 500: the catch-all at the bottom exists for bugs, logs them, and still answers JSON.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+log = logging.getLogger("frt.errors")
+
+Loc = Sequence[str | int]
+
+
+class APIError(Exception):
+    """An error with an HTTP status, shaped the same over HTTP and the WebSocket."""
+
+    def __init__(
+        self,
+        status: int,
+        detail: str,
+        *,
+        field: str | None = None,
+        headers: dict[str, str] | None = None,
+    ) -> None:
+        super().__init__(detail)
+        self.status = status
+        self.detail = detail
+        self.field = field
+        self.headers = headers
+
+    def payload(self, prefix: Loc = ()) -> dict[str, Any]:
+        if self.status != 422:
+            return {"detail": self.detail}
+        loc = [*prefix, *(self.field.split(".") if self.field else [])]
+        return {
+            "detail": [
+                {"loc": [_int_or_str(p) for p in loc], "msg": self.detail, "type": "value_error"}
+            ],
+            "field": self.field,
+        }
+
+
+class FieldError(APIError):
+    """422: a value the schema accepts but the service cannot (ranges, shapes, positive definiteness)."""
+
+    def __init__(self, field: str, message: str, *, location: str = "body") -> None:
+        super().__init__(422, message, field=field)
+        self.location = location
+
+
+class AgentNotFoundError(APIError):
+    def __init__(self, agent_id: str) -> None:
+        super().__init__(404, f"unknown agent {agent_id!r}")
+
+
+class StaleTimestampError(APIError):
+    def __init__(self, agent_id: str, timestamp: float, last: float) -> None:
+        super().__init__(
+            409,
+            f"stale observation for agent {agent_id!r}: timestamp {timestamp!r} is not after "
+            f"the last one ({last!r})",
+        )
+        self.last = last
+
+
+class ServiceUnavailableError(APIError):
+    def __init__(self, detail: str) -> None:
+        super().__init__(503, detail, headers={"Retry-After": "1"})
+
+
+class UnauthorizedError(APIError):
+    def __init__(self) -> None:
+        super().__init__(
+            401, "missing or invalid bearer token", headers={"WWW-Authenticate": "Bearer"}
+        )
+
+
+class BodyTooLargeError(StarletteHTTPException):
+    """413, raised while the body streams in. An HTTPException so FastAPI re-raises it unchanged."""
+
+    def __init__(self, limit: int) -> None:
+        super().__init__(413, f"request body larger than {limit} bytes")
+
+
+def _int_or_str(part: str | int) -> str | int:
+    return int(part) if isinstance(part, str) and part.isdigit() else part
+
+
+def dotted(loc: Loc) -> str:
+    """``("body", "prediction", "cov", 2)`` -> ``"prediction.cov.2"`` (the request part dropped)."""
+    parts = [str(p) for p in loc]
+    if parts and parts[0] in ("body", "query", "path", "header", "cookie"):
+        parts = parts[1:]
+    return ".".join(parts)
+
+
+def validation_payload(errors: Sequence[Any], prefix: Loc = ()) -> dict[str, Any]:
+    """FastAPI's 422 list, trimmed to JSON-safe ``{loc, msg, type}``, plus the first ``field``."""
+    detail = [
+        {
+            "loc": [*prefix, *(p if isinstance(p, int) else str(p) for p in err.get("loc", ()))],
+            "msg": str(err.get("msg", "invalid value")),
+            "type": str(err.get("type", "value_error")),
+        }
+        for err in errors
+    ]
+    field = dotted(detail[0]["loc"]) if detail else None
+    return {"detail": detail, "field": field}
+
+
+def error_response(status: int, body: dict[str, Any], headers: dict[str, str] | None = None):
+    return JSONResponse(body, status_code=status, headers=headers)
+
+
+async def _api_error(request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, APIError)
+    location = getattr(exc, "location", None)
+    prefix: Loc = (location,) if location else ()
+    return error_response(exc.status, exc.payload(prefix), exc.headers)
+
+
+async def _request_validation(request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, RequestValidationError)
+    return error_response(422, validation_payload(exc.errors()))
+
+
+async def _http_exception(request: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, StarletteHTTPException)
+    headers = getattr(exc, "headers", None)
+    return error_response(exc.status_code, {"detail": exc.detail}, headers)
+
+
+async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
+    request_id = getattr(request.state, "request_id", None)
+    log.exception(
+        "unhandled error",
+        extra={"request_id": request_id, "path": request.url.path, "error": repr(exc)},
+    )
+    return error_response(500, {"detail": "internal server error", "request_id": request_id})
+
+
+def install_error_handlers(app: FastAPI) -> None:
+    app.add_exception_handler(APIError, _api_error)
+    app.add_exception_handler(RequestValidationError, _request_validation)
+    app.add_exception_handler(StarletteHTTPException, _http_exception)
+    app.add_exception_handler(Exception, _unexpected)

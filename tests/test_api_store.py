@@ -1,0 +1,154 @@
+"""The agent store: atomic updates with the timestamp check, TTL, capacity, no lost updates."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import threading
+import time
+
+import pytest
+
+from service.errors import StaleTimestampError
+from service.store import AgentState, AgentStore, InMemoryAgentStore, StoreFullError
+
+
+class FakeClock:
+    def __init__(self) -> None:
+        self.now = 1000.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def state(agent_id: str, timestamp: float, version: int = 1) -> AgentState:
+    return AgentState(
+        agent_id=agent_id,
+        timestamp=timestamp,
+        x=1.0,
+        y=2.0,
+        heading=0.5,
+        speed=3.0,
+        belief={"betas": [0.03, 1.0], "log_probs": [-0.69, -0.69]},
+        prediction={"dt": 0.5, "mean": [[0.0, 0.0]], "cov": [[[1.0, 0.0], [0.0, 1.0]]]},
+        control_bounds=[-1.0, -2.0, -1.0, -2.0, 1.0, 2.0, 1.0, 2.0],
+        config={"gamma": 0.1},
+        frt_version=version,
+    )
+
+
+def put(store: AgentStore, agent_id: str, timestamp: float) -> AgentState:
+    def fn(previous: AgentState | None) -> AgentState:
+        version = previous.frt_version + 1 if previous else 1
+        return state(agent_id, timestamp, version)
+
+    return asyncio.run(store.update(agent_id, fn, timestamp=timestamp))
+
+
+def test_state_is_json_round_trippable() -> None:
+    original = state("a", 1.5)
+    assert AgentState.from_dict(json.loads(json.dumps(original.to_dict()))) == original
+
+
+def test_in_memory_store_follows_the_protocol() -> None:
+    assert isinstance(InMemoryAgentStore(ttl_s=1, max_agents=1), AgentStore)
+
+
+def test_update_get_delete() -> None:
+    store = InMemoryAgentStore(ttl_s=60, max_agents=10)
+    assert asyncio.run(store.get("a")) is None
+    assert put(store, "a", 1.0).frt_version == 1
+    assert put(store, "a", 2.0).frt_version == 2
+    got = asyncio.run(store.get("a"))
+    assert got is not None and got.timestamp == 2.0 and got.frt_version == 2
+    assert asyncio.run(store.ids()) == ["a"] and asyncio.run(store.count()) == 1
+    assert asyncio.run(store.delete("a")) is True
+    assert asyncio.run(store.delete("a")) is False
+    assert asyncio.run(store.get("a")) is None
+
+
+def test_timestamps_must_increase() -> None:
+    store = InMemoryAgentStore(ttl_s=60, max_agents=10)
+    put(store, "a", 5.0)
+    for stale in (5.0, 4.0):
+        with pytest.raises(StaleTimestampError) as info:
+            put(store, "a", stale)
+        assert info.value.status == 409
+    assert asyncio.run(store.get("a")).timestamp == 5.0  # type: ignore[union-attr]
+
+
+def test_a_failing_update_changes_nothing() -> None:
+    store = InMemoryAgentStore(ttl_s=60, max_agents=10)
+    put(store, "a", 1.0)
+
+    def bad(previous: AgentState | None) -> AgentState:
+        assert previous is not None
+        previous.frt_version = 99  # mutating the copy must not leak
+        raise ValueError("no")
+
+    with pytest.raises(ValueError):
+        asyncio.run(store.update("a", bad, timestamp=2.0))
+    got = asyncio.run(store.get("a"))
+    assert got is not None and got.frt_version == 1 and got.timestamp == 1.0
+
+
+def test_returned_states_are_copies() -> None:
+    store = InMemoryAgentStore(ttl_s=60, max_agents=10)
+    put(store, "a", 1.0)
+    got = asyncio.run(store.get("a"))
+    assert got is not None
+    got.control_bounds[0] = 42.0
+    assert asyncio.run(store.get("a")).control_bounds[0] == -1.0  # type: ignore[union-attr]
+
+
+def test_ttl_expires_agents_and_updates_refresh_it() -> None:
+    clock = FakeClock()
+    store = InMemoryAgentStore(ttl_s=10, max_agents=10, clock=clock)
+    put(store, "a", 1.0)
+    put(store, "b", 1.0)
+    clock.now += 6
+    put(store, "a", 2.0)  # refreshes a only
+    clock.now += 6
+    assert asyncio.run(store.get("a")) is not None
+    assert asyncio.run(store.get("b")) is None
+    assert asyncio.run(store.count()) == 1
+    clock.now += 11
+    assert asyncio.run(store.ids()) == []
+
+
+def test_capacity_refuses_new_agents_until_some_expire() -> None:
+    clock = FakeClock()
+    store = InMemoryAgentStore(ttl_s=10, max_agents=2, clock=clock)
+    put(store, "a", 1.0)
+    put(store, "b", 1.0)
+    with pytest.raises(StoreFullError) as info:
+        put(store, "c", 1.0)
+    assert info.value.status == 503
+    put(store, "a", 2.0)  # known agents can still be updated
+    clock.now += 11
+    put(store, "c", 1.0)
+    assert sorted(asyncio.run(store.ids())) == ["c"]
+
+
+def test_concurrent_updates_of_one_agent_lose_nothing() -> None:
+    store = InMemoryAgentStore(ttl_s=60, max_agents=10)
+    put(store, "a", 0.0)
+    threads, per_thread = 8, 25
+
+    def bump(previous: AgentState | None) -> AgentState:
+        assert previous is not None
+        seen = previous.frt_version
+        time.sleep(0.0001)  # invite a race: another thread would overwrite this update
+        previous.frt_version = seen + 1
+        return previous
+
+    def worker() -> None:
+        for _ in range(per_thread):
+            asyncio.run(store.update("a", bump))
+
+    pool = [threading.Thread(target=worker) for _ in range(threads)]
+    for t in pool:
+        t.start()
+    for t in pool:
+        t.join()
+    assert asyncio.run(store.get("a")).frt_version == 1 + threads * per_thread  # type: ignore[union-attr]

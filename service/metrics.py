@@ -1,0 +1,66 @@
+"""Prometheus metrics of one app instance (its own registry, so tests can build many apps)."""
+
+from __future__ import annotations
+
+from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, generate_latest
+from prometheus_client.exposition import CONTENT_TYPE_LATEST
+
+#: Request latencies are in the low milliseconds: buckets from 0.25 ms to 10 s.
+LATENCY_BUCKETS = (
+    0.00025, 0.0005, 0.001, 0.002, 0.003, 0.005, 0.0075, 0.01, 0.015, 0.02, 0.03, 0.05, 0.075,
+    0.1, 0.2, 0.5, 1.0, 2.5, 10.0,
+)  # fmt: skip
+
+
+class Metrics:
+    content_type = CONTENT_TYPE_LATEST
+
+    def __init__(self) -> None:
+        self.registry = CollectorRegistry()
+        r = self.registry
+        self.request_seconds = Histogram(
+            "frt_http_request_duration_seconds",
+            "HTTP request latency, by route template, method and status",
+            ["route", "method", "status"],
+            buckets=LATENCY_BUCKETS,
+            registry=r,
+        )
+        self.ws_message_seconds = Histogram(
+            "frt_ws_message_duration_seconds",
+            "WebSocket message handling time, by operation and outcome",
+            ["op", "ok"],
+            buckets=LATENCY_BUCKETS,
+            registry=r,
+        )
+        self.frt_compute_seconds = Histogram(
+            "frt_compute_seconds",
+            "Time to compute one FRT set (exact: background; conservative: fallback)",
+            ["kind"],
+            buckets=LATENCY_BUCKETS,
+            registry=r,
+        )
+        self.frt_cache = Counter(
+            "frt_cache_lookups",
+            "Exact-FRT cache lookups: hit (ready), pending (being computed) or miss",
+            ["result"],
+            registry=r,
+        )
+        self.frt_failures = Counter(
+            "frt_exact_failures", "Exact-FRT computations that raised", registry=r
+        )
+        self.collision_checks = Counter(
+            "frt_collision_checks",
+            "Per-agent collision answers, by the set they came from",
+            ["source"],
+            registry=r,
+        )
+        self.deadline_misses = Counter(
+            "frt_deadline_misses",
+            "Collision checks answered after their deadline",
+            registry=r,
+        )
+        self.agents = Gauge("frt_agents", "Agents in the store", registry=r)
+        self.model_ready = Gauge("frt_model_ready", "1 once the model is loaded", registry=r)
+
+    def render(self) -> bytes:
+        return generate_latest(self.registry)

@@ -86,6 +86,10 @@ def train(config: TrainConfig, out: Path, max_minutes: float | None = None) -> P
     weights = config.loss_weights()
     log_path = out / "log.csv"
     new_log = not log_path.exists() or step == 0
+    if not new_log:  # drop rows logged after the checkpoint we resume from
+        lines = log_path.read_text().splitlines(keepends=True)
+        kept = [ln for ln in lines[1:] if int(ln.split(",", 1)[0]) <= step]
+        log_path.write_text(lines[0] + "".join(kept))
     log_file = log_path.open("w" if new_log else "a", newline="")
     log = csv.writer(log_file)
     if new_log:

@@ -1,0 +1,59 @@
+"""The shipped value network against committed ground truth it never saw.
+
+tests/fixtures/accuracy_states.npz (scripts/make_accuracy_fixture.py) holds states reached by rollouts
+of the true dynamics and states at least 1 m outside the interval outer bound, for eight settings.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from service.model_runtime import ValueModel, file_sha256
+
+ROOT = Path(__file__).resolve().parent.parent
+MODEL = ROOT / "models" / "frt_unicycle.onnx"
+FIXTURE = ROOT / "tests" / "fixtures" / "accuracy_states.npz"
+
+pytestmark = pytest.mark.skipif(not MODEL.exists(), reason="no shipped model yet")
+
+
+@pytest.fixture(scope="module")
+def model() -> ValueModel:
+    return ValueModel.load(MODEL, prefer_runtime_graph=False)
+
+
+@pytest.fixture(scope="module")
+def states() -> dict[str, np.ndarray]:
+    data = np.load(FIXTURE, allow_pickle=False)
+    return {k: data[k] for k in data.files}
+
+
+def test_card_matches_the_shipped_file() -> None:
+    card = json.loads(MODEL.with_suffix(".json").read_text())
+    assert card["sha256"] == file_sha256(MODEL)
+    assert card["semantics"] in ("set", "tube")
+    assert card["calibration"]["delta"] >= 0
+
+
+def test_reachable_states_are_inside_the_calibrated_set(model, states) -> None:
+    values = model.evaluate(states["reachable"])
+    inside = values <= model.card.delta
+    for name in np.unique(states["setting"]):
+        recall = inside[states["setting"] == name].mean()
+        assert recall >= 0.99, f"{name}: recall {recall:.4f}"
+
+
+def test_states_outside_the_outer_bound_are_outside_the_set(model, states) -> None:
+    values = model.evaluate(states["unreachable"])
+    outside = values > model.card.delta
+    assert outside.mean() >= 0.95, f"only {outside.mean():.3f} of unreachable states excluded"
+
+
+def test_runtime_graph_agrees_with_the_contract_graph(model, states) -> None:
+    fast = ValueModel.load(MODEL)
+    x = states["reachable"]
+    assert np.max(np.abs(fast.evaluate(x) - model.evaluate(x))) <= 1e-3

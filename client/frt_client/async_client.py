@@ -16,7 +16,7 @@ from frt_client.calls import Call
 from frt_client.errors import DeadlineError, UnavailableError
 from frt_client.models import Health, ModelCard, Readiness, Response
 from frt_client.operations import AsyncOperations
-from frt_client.retry import RetryPolicy
+from frt_client.retry import RetryPolicy, note
 
 T = TypeVar("T", bound=Response)
 
@@ -79,6 +79,7 @@ class AsyncFRTClient(AsyncOperations):
                 delay = self.retry.delay(attempt, idempotent=call.idempotent, error=exc)
                 if delay is None:
                     raise wire.transport_error(exc, call) from exc
+                why: object = type(exc).__name__
             else:
                 delay = self.retry.delay(
                     attempt,
@@ -88,6 +89,8 @@ class AsyncFRTClient(AsyncOperations):
                 )
                 if delay is None:
                     return wire.result(call, response)
+                why = response.status_code
+            note(f"{call.method} {call.path}", attempt, delay, why)
             await asyncio.sleep(delay)
             attempt += 1
 

@@ -19,7 +19,7 @@ from frt_client.calls import Call
 from frt_client.errors import DeadlineError, FRTError, UnavailableError
 from frt_client.models import Response
 from frt_client.operations import AsyncOperations
-from frt_client.retry import RetryPolicy
+from frt_client.retry import RetryPolicy, note
 from frt_client.stream import MAX_MESSAGE_BYTES, handshake_error
 
 T = TypeVar("T", bound=Response)
@@ -127,7 +127,9 @@ class AsyncStream(AsyncOperations):
                     raise handshake_error(exc, self.url) from exc
             except WebSocketException as exc:
                 raise handshake_error(exc, self.url) from exc
-            await asyncio.sleep(self.retry.backoff(attempt))
+            delay = self.retry.backoff(attempt)
+            note(f"connect {self.url}", attempt, delay, "connection refused or timed out")
+            await asyncio.sleep(delay)
             attempt += 1
 
     async def _read(self, ws: ClientConnection) -> None:

@@ -13,7 +13,7 @@ from frt_client.calls import Call
 from frt_client.errors import DeadlineError, UnavailableError
 from frt_client.models import Health, ModelCard, Readiness, Response
 from frt_client.operations import Operations
-from frt_client.retry import RetryPolicy
+from frt_client.retry import RetryPolicy, note
 from frt_client.stream import Stream
 
 T = TypeVar("T", bound=Response)
@@ -84,6 +84,7 @@ class FRTClient(Operations):
                 delay = self.retry.delay(attempt, idempotent=call.idempotent, error=exc)
                 if delay is None:
                     raise wire.transport_error(exc, call) from exc
+                why: object = type(exc).__name__
             else:
                 delay = self.retry.delay(
                     attempt,
@@ -93,6 +94,8 @@ class FRTClient(Operations):
                 )
                 if delay is None:
                     return wire.result(call, response)
+                why = response.status_code
+            note(f"{call.method} {call.path}", attempt, delay, why)
             time.sleep(delay)
             attempt += 1
 

@@ -12,11 +12,14 @@ Timeouts are not retried: the caller's time budget is spent, and a planner shoul
 
 from __future__ import annotations
 
+import logging
 import random
 from dataclasses import dataclass
 from typing import Any
 
 import httpx
+
+log = logging.getLogger("frt_client.retry")
 
 #: Errors raised before any byte of the request was sent.
 NOT_SENT_ERRORS: tuple[type[Exception], ...] = (httpx.ConnectError, httpx.ConnectTimeout)
@@ -75,6 +78,18 @@ class RetryPolicy:
 
 
 NO_RETRY = RetryPolicy(retries=0)
+
+
+def note(what: str, attempt: int, delay: float, why: object) -> None:
+    """Log one retry (logger ``frt_client.retry``, level INFO)."""
+    log.info(
+        "retrying %s in %.3f s (attempt %d): %s",
+        what,
+        delay,
+        attempt + 2,
+        why,
+        extra={"frt_retry_attempt": attempt + 1, "frt_retry_delay_s": delay},
+    )
 
 
 def _retry_after(value: Any) -> float | None:

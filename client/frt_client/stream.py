@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import threading
 import time
+from contextlib import ExitStack
 from types import TracebackType
 from typing import Any, TypeVar
 
@@ -21,7 +22,7 @@ from frt_client.calls import Call
 from frt_client.errors import DeadlineError, FRTError, UnavailableError, from_status
 from frt_client.models import Response
 from frt_client.operations import Operations
-from frt_client.retry import RetryPolicy
+from frt_client.retry import RetryPolicy, note
 
 T = TypeVar("T", bound=Response)
 
@@ -65,6 +66,7 @@ class Stream(Operations):
         self.retry = retry if retry is not None else RetryPolicy()
         self._headers = {"Authorization": f"Bearer {token}"} if token else {}
         self._ws: ClientConnection | None = None
+        self._stack = ExitStack()  # holds the connection's context open between calls
         self._next_id = 0
         self._lock = threading.Lock()
 
@@ -76,12 +78,14 @@ class Stream(Operations):
         attempt = 0
         while True:
             try:
-                self._ws = connect(
-                    self.url,
-                    additional_headers=self._headers,
-                    open_timeout=self.connect_timeout,
-                    max_size=MAX_MESSAGE_BYTES,
-                    compression=None,
+                self._ws = self._stack.enter_context(
+                    connect(
+                        self.url,
+                        additional_headers=self._headers,
+                        open_timeout=self.connect_timeout,
+                        max_size=MAX_MESSAGE_BYTES,
+                        compression=None,
+                    )
                 )
                 return self
             except (OSError, TimeoutError) as exc:
@@ -89,14 +93,15 @@ class Stream(Operations):
                     raise handshake_error(exc, self.url) from exc
             except WebSocketException as exc:
                 raise handshake_error(exc, self.url) from exc
-            time.sleep(self.retry.backoff(attempt))
+            delay = self.retry.backoff(attempt)
+            note(f"connect {self.url}", attempt, delay, "connection refused or timed out")
+            time.sleep(delay)
             attempt += 1
 
     def close(self) -> None:
         """Close the connection (idempotent)."""
-        ws, self._ws = self._ws, None
-        if ws is not None:
-            ws.close()
+        self._ws = None
+        self._stack.close()
 
     def __enter__(self) -> Stream:
         return self.open()
@@ -141,5 +146,5 @@ class Stream(Operations):
         except TimeoutError:
             raise DeadlineError(f"{call.op}: no answer within {self.timeout} s") from None
         except ConnectionClosed as exc:
-            self._ws = None
+            self.close()
             raise UnavailableError(f"stream closed: {exc}", detail=str(exc)) from exc

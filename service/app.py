@@ -1,17 +1,56 @@
-"""The FastAPI application: ``uvicorn service.app:app``."""
+"""The FastAPI application: ``uvicorn service.app:app`` (or ``--factory service.app:create_app``)."""
 
 from __future__ import annotations
 
-from fastapi import FastAPI
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
 
-app = FastAPI(title="FRT service", version="0.1.0")
+from fastapi import Depends, FastAPI
+
+from service.auth import BearerAuthMiddleware, bearer_scheme
+from service.errors import install_error_handlers
+from service.logs import configure_logging
+from service.middleware import BodySizeLimitMiddleware, RequestContextMiddleware
+from service.routes import agents, collision, contours, health, model, stateless, stream
+from service.services import Services
+from service.settings import Settings, get_settings
+
+DESCRIPTION = """Confidence-aware forward reachable tubes (FRTs) of human-driven cars.
+
+The contract is API.md. Every `/v1` route needs `Authorization: Bearer <token>` when the server
+has an `auth_token`; the WebSocket `/v1/stream` also takes `?token=`.
+"""
 
 
-@app.get("/healthz")
-def healthz() -> dict[str, str]:
-    return {"status": "ok"}
+def create_app(settings: Settings | None = None) -> FastAPI:
+    settings = settings or get_settings()
+    configure_logging(settings.log_level, settings.log_json)
+    services = Services.build(settings)
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        await services.start()
+        try:
+            yield
+        finally:
+            await services.stop()
+
+    app = FastAPI(title="FRT service", version="0.1.0", description=DESCRIPTION, lifespan=lifespan)
+    app.state.services = services
+    install_error_handlers(app)
+    # Added last = outermost: context (timing, id, logs) -> auth -> body limit -> routes.
+    app.add_middleware(BodySizeLimitMiddleware, max_bytes=settings.max_body_bytes)
+    app.add_middleware(BearerAuthMiddleware, token=settings.auth_token)
+    app.add_middleware(
+        RequestContextMiddleware, metrics=services.metrics, log_requests=settings.log_requests
+    )
+
+    app.include_router(health.router)
+    documented_auth = [Depends(bearer_scheme)]
+    for router in (agents, collision, contours, stateless, model):
+        app.include_router(router.router, dependencies=documented_auth)
+    app.include_router(stream.router)
+    return app
 
 
-@app.get("/readyz")
-def readyz() -> dict[str, object]:
-    return {"ready": False, "model": None}
+app = create_app()

@@ -146,7 +146,10 @@ async def _unexpected(request: Request, exc: Exception) -> JSONResponse:
         "unhandled error",
         extra={"request_id": request_id, "path": request.url.path, "error": repr(exc)},
     )
-    return error_response(500, {"detail": "internal server error", "request_id": request_id})
+    headers = {"x-request-id": request_id} if request_id else None
+    return error_response(
+        500, {"detail": "internal server error", "request_id": request_id}, headers
+    )
 
 
 def install_error_handlers(app: FastAPI) -> None:

@@ -1,0 +1,161 @@
+"""Collision checks (API.md, "Collision check") within a deadline.
+
+Each agent's answer comes from the exact FRT of its current version if that is ready before the
+deadline (measured from the request's arrival, less ``deadline_reserve_ms``), else from the engine's
+conservative set, which contains the exact one (``conservative: true``). Clearance is the signed
+distance to K minus R_col: negative inside C.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import Sequence
+
+import numpy as np
+from starlette.concurrency import run_in_threadpool
+
+from service.agents import effective_config
+from service.confidence import Belief
+from service.engine import FRTSet
+from service.errors import AgentNotFoundError, FieldError
+from service.limits import check_agents, check_trajectory
+from service.schemas import (
+    CollisionAnswer,
+    CollisionCheckRequest,
+    CollisionCheckResponse,
+    MultiCollisionCheckRequest,
+    MultiCollisionCheckResponse,
+    TrajectoryPoint,
+)
+from service.services import FRTJob, Services
+from service.store import AgentState
+
+#: Clearances are clipped to +-this (metres) so that "no set at all" (infinite distance) stays JSON.
+CLEARANCE_LIMIT = 1e9
+
+
+def answer(
+    frt: FRTSet,
+    trajectory: Sequence[TrajectoryPoint],
+    collision_radius: float,
+    t_origin: float | None,
+) -> CollisionAnswer:
+    """Check a trajectory against one set. ``t_origin`` None: the whole-horizon tube; else each point
+    at time t against the tube up to ``t - t_origin``."""
+    xy = np.array([[p.x, p.y] for p in trajectory], dtype=np.float64)
+    t_rel = None if t_origin is None else np.array([p.t - t_origin for p in trajectory])
+    distance = np.asarray(frt.clearance(xy, t_rel), dtype=np.float64) - collision_radius
+    # NaN would be a bug in the geometry; count it as a collision rather than as clear.
+    distance = np.where(np.isnan(distance), -CLEARANCE_LIMIT, distance)
+    clearance = np.clip(distance, -CLEARANCE_LIMIT, CLEARANCE_LIMIT)
+    hits = np.flatnonzero(clearance < 0.0)
+    first = int(hits[0]) if hits.size else None
+    return CollisionAnswer(
+        collision=first is not None,
+        first_collision_index=first,
+        first_collision_time=None if first is None else trajectory[first].t,
+        clearance=clearance.tolist(),
+    )
+
+
+def remaining_s(arrival: float, deadline_ms: float, reserve_ms: float) -> float:
+    """Seconds left to wait for an exact set before answering conservatively."""
+    return deadline_ms / 1000.0 - (time.perf_counter() - arrival) - reserve_ms / 1000.0
+
+
+async def answer_states(
+    services: Services,
+    states: Sequence[AgentState],
+    request: CollisionCheckRequest,
+    arrival: float,
+) -> list[CollisionCheckResponse]:
+    settings = services.settings
+    services.require_engine()
+    deadline_ms = request.deadline_ms or settings.deadline_ms
+    jobs = [services.job_for(state) for state in states]
+    budget = remaining_s(arrival, deadline_ms, settings.deadline_reserve_ms)
+    exact = await asyncio.gather(*(services.exact_within(job, budget) for job in jobs))
+
+    def compute() -> list[CollisionCheckResponse]:
+        return [
+            _respond(services, state, job, frt, request)
+            for state, job, frt in zip(states, jobs, exact, strict=True)
+        ]
+
+    results = await run_in_threadpool(compute)
+    if time.perf_counter() - arrival > deadline_ms / 1000.0:
+        services.metrics.deadline_misses.inc()
+    return results
+
+
+def _respond(
+    services: Services,
+    state: AgentState,
+    job: FRTJob,
+    frt: FRTSet | None,
+    request: CollisionCheckRequest,
+) -> CollisionCheckResponse:
+    conservative = frt is None
+    if frt is None:
+        frt = services.conservative(job)
+    services.metrics.collision_checks.labels("conservative" if conservative else "exact").inc()
+    radius = request.collision_radius
+    if radius is None:
+        radius = float(effective_config(services.settings, state.config)["collision_radius"])
+    t_origin = state.timestamp if request.mode == "time_indexed" else None
+    result = answer(frt, request.trajectory, radius, t_origin)
+    return CollisionCheckResponse(
+        **result.model_dump(),
+        agent_id=state.agent_id,
+        mode=request.mode,
+        collision_radius=radius,
+        beta=Belief.from_dict(state.belief).beta,
+        frt_version=state.frt_version,
+        conservative=conservative,
+        horizon_end=state.timestamp + services.horizon_s(),
+    )
+
+
+async def check_agent(
+    services: Services, agent_id: str, request: CollisionCheckRequest, arrival: float
+) -> CollisionCheckResponse:
+    check_trajectory("trajectory", request.trajectory, services.settings)
+    services.require_engine()
+    state = await services.store.get(agent_id)
+    if state is None:
+        raise AgentNotFoundError(agent_id)
+    return (await answer_states(services, [state], request, arrival))[0]
+
+
+async def check_agents_at_once(
+    services: Services, request: MultiCollisionCheckRequest, arrival: float
+) -> MultiCollisionCheckResponse:
+    settings = services.settings
+    check_trajectory("trajectory", request.trajectory, settings)
+    services.require_engine()
+    if request.agent_ids is None:
+        ids = await services.store.ids()
+        if len(ids) > settings.max_agents_per_check:
+            raise FieldError(
+                "agent_ids",
+                f"{len(ids)} agents are known, more than {settings.max_agents_per_check} per "
+                "check: name the agents to check",
+            )
+    else:
+        ids = list(dict.fromkeys(request.agent_ids))  # drop repeats, keep the order
+        check_agents("agent_ids", ids, settings)
+    states, missing = [], []
+    for agent_id in ids:
+        state = await services.store.get(agent_id)
+        if state is None:
+            missing.append(agent_id)
+        else:
+            states.append(state)
+    results = await answer_states(services, states, request, arrival) if states else []
+    return MultiCollisionCheckResponse(
+        collision=any(r.collision for r in results),
+        conservative=any(r.conservative for r in results),
+        results=results,
+        missing=missing,
+    )

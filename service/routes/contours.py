@@ -1,0 +1,32 @@
+"""``GET /v1/agents/{agent_id}/frt``: GeoJSON contours of K and C."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Query
+
+from service import contours
+from service.routes.params import AgentIdPath, ServicesDep
+from service.schemas import ContoursResponse
+
+router = APIRouter(prefix="/v1", tags=["frt"])
+
+
+@router.get("/agents/{agent_id}/frt", response_model=ContoursResponse)
+async def agent_contours(
+    agent_id: AgentIdPath,
+    services: ServicesDep,
+    slices: Annotated[
+        str | None,
+        Query(max_length=4096, description="comma-separated seconds after the observation"),
+    ] = None,
+    include: Annotated[str, Query(max_length=16, description="subset of K,C")] = "K,C",
+    tube: Annotated[bool, Query(description="include the whole-horizon tube")] = True,
+    collision_radius: Annotated[
+        float | None, Query(ge=0.0, le=100.0, description="default: the agent's R_col")
+    ] = None,
+) -> ContoursResponse:
+    """The whole-horizon tube and the requested time slices, in the world frame."""
+    query = contours.parse_query(slices, include, tube)
+    return await contours.agent_contours(services, agent_id, query, collision_radius)

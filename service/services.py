@@ -1,0 +1,141 @@
+"""The objects one app shares between its routes: settings, store, scheduler, metrics, engine.
+
+The model is loaded in a background thread at start-up: ``/healthz`` answers at once, ``/readyz`` and
+the model-dependent routes answer 503 until it is loaded (or for good, if it cannot be).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from starlette.requests import HTTPConnection
+
+from service.engine import FRTEngine, FRTSet, Pose
+from service.errors import ServiceUnavailableError
+from service.metrics import Metrics
+from service.model_runtime import ValueModel
+from service.scheduler import FRTKey, FRTScheduler
+from service.settings import Settings
+from service.store import AgentState, AgentStore, make_store
+
+log = logging.getLogger("frt.services")
+
+
+@dataclass(frozen=True)
+class FRTJob:
+    """What one FRT depends on, and its cache key."""
+
+    key: FRTKey
+    pose: Pose
+    v_start: float
+    bounds: np.ndarray
+
+    @classmethod
+    def make(cls, agent_id: str, version: int, pose: Pose, v_start: float, bounds: Any) -> FRTJob:
+        bounds = np.asarray(bounds, dtype=np.float64)
+        inputs = (pose.x, pose.y, pose.heading, v_start, *bounds.tolist())
+        return cls(FRTKey.of(agent_id, version, inputs), pose, float(v_start), bounds)
+
+
+@dataclass
+class Services:
+    settings: Settings
+    metrics: Metrics
+    store: AgentStore
+    scheduler: FRTScheduler
+    engine: FRTEngine | None = None
+    model_name: str | None = None
+    model_error: str | None = "model is loading"
+    _loader: asyncio.Task[None] | None = field(default=None, repr=False)
+
+    @classmethod
+    def build(cls, settings: Settings) -> Services:
+        metrics = Metrics()
+        store = make_store(
+            settings.store_url, ttl_s=settings.agent_ttl_s, max_agents=settings.max_agents
+        )
+        scheduler = FRTScheduler(
+            workers=settings.frt_workers, cache_size=settings.frt_cache_size, metrics=metrics
+        )
+        return cls(settings=settings, metrics=metrics, store=store, scheduler=scheduler)
+
+    # ------------------------------------------------------------------ lifecycle
+    async def start(self) -> None:
+        self.scheduler.start()
+        self._loader = asyncio.create_task(asyncio.to_thread(self.load_model))
+
+    async def stop(self) -> None:
+        if self._loader is not None and not self._loader.done():
+            self._loader.cancel()
+        self.scheduler.shutdown()
+        await self.store.close()
+
+    def load_model(self) -> None:
+        """Load the ONNX model and its card and build the engine (blocking; runs in a thread)."""
+        path = self.settings.model_path
+        start = time.perf_counter()
+        try:
+            model = ValueModel.load(path)
+            engine = FRTEngine(model)
+        except Exception as exc:  # a missing or broken model must not stop the service
+            self.model_error = f"model not loaded: {exc}"
+            log.error("model not loaded", extra={"model_path": str(path), "error": str(exc)})
+            return
+        self.engine = engine
+        self.model_name = model.card.name
+        self.model_error = None
+        self.metrics.model_ready.set(1)
+        log.info(
+            "model loaded",
+            extra={
+                "model": model.card.name,
+                "model_path": str(path),
+                "seconds": round(time.perf_counter() - start, 3),
+            },
+        )
+
+    def require_engine(self) -> FRTEngine:
+        if self.engine is None:
+            raise ServiceUnavailableError(self.model_error or "model not loaded")
+        return self.engine
+
+    # ------------------------------------------------------------------ FRT sets
+    def job_for(self, state: AgentState) -> FRTJob:
+        pose = Pose(state.x, state.y, state.heading)
+        return FRTJob.make(
+            state.agent_id, state.frt_version, pose, state.speed, state.control_bounds
+        )
+
+    def submit(self, job: FRTJob) -> None:
+        """Start computing the exact set of ``job`` in the background."""
+        engine = self.require_engine()
+        self.scheduler.submit(job.key, lambda: engine.exact(job.pose, job.v_start, job.bounds))
+
+    async def exact_within(self, job: FRTJob, timeout_s: float) -> FRTSet | None:
+        """The exact set if it is ready within ``timeout_s`` (starting it if nobody has), else None."""
+        engine = self.require_engine()
+        return await self.scheduler.wait(
+            job.key, lambda: engine.exact(job.pose, job.v_start, job.bounds), timeout_s
+        )
+
+    def conservative(self, job: FRTJob) -> FRTSet:
+        """The engine's fast set that contains the exact one (blocking: call from a thread)."""
+        engine = self.require_engine()
+        start = time.perf_counter()
+        result = engine.conservative(job.pose, job.v_start, job.bounds)
+        self.metrics.frt_compute_seconds.labels("conservative").observe(time.perf_counter() - start)
+        return result
+
+    def horizon_s(self) -> float:
+        engine = self.engine
+        return float(engine.horizon) if engine is not None else self.settings.horizon_s
+
+
+def services_of(conn: HTTPConnection) -> Services:
+    """FastAPI dependency: the app's :class:`Services` (works for requests and WebSockets)."""
+    return conn.app.state.services  # type: ignore[no-any-return]

@@ -11,11 +11,12 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from starlette.concurrency import run_in_threadpool
 
 from service.bounds import PredictionError, control_bounds, validate_prediction
 from service.confidence import Belief, hypotheses, prior_belief, update_belief
 from service.engine import FRTEngine, OutOfRangeError
-from service.errors import AgentNotFoundError, FieldError
+from service.errors import AgentNotFoundError, FieldError, StaleTimestampError
 from service.limits import check_prediction_steps
 from service.schemas import (
     AgentResponse,
@@ -110,32 +111,30 @@ def belief_out(belief: Belief) -> tuple[BeliefOut, BeliefOut]:
 async def observe(
     services: Services, agent_id: str, request: ObservationRequest
 ) -> ObservationResponse:
+    """The observation flow. The numerical work (validation, Bayes update, bounds fit) runs in a
+    thread against the state read first; the store's atomic update then only checks that nobody
+    wrote in between (else it recomputes from the fresh state, under the agent's lock)."""
     settings = services.settings
     engine = services.require_engine()
-    mean, cov = validated_prediction(request.prediction, settings)
+    check_prediction_steps("prediction", request.prediction.mean, settings)
     patch = request.config.model_dump(exclude_none=True) if request.config else {}
-    scored = False
+    previous = await services.store.get(agent_id)
+    if previous is not None and request.timestamp <= previous.timestamp:
+        raise StaleTimestampError(agent_id, request.timestamp, previous.timestamp)
 
-    def apply(previous: AgentState | None) -> AgentState:
-        nonlocal scored
-        overrides = {**(previous.config if previous else {}), **patch}
+    def build(prior: AgentState | None, mean: np.ndarray, cov: np.ndarray) -> AgentState:
+        overrides = {**(prior.config if prior else {}), **patch}
         config = effective_config(settings, overrides)
-        belief = _belief(previous, config["beta_low"])
+        belief = _belief(prior, config["beta_low"])
         action = request.observed_action
-        if action is not None and previous is not None:
-            prev_mean = np.asarray(previous.prediction["mean"][0], dtype=np.float64)
-            prev_cov = np.asarray(previous.prediction["cov"][0], dtype=np.float64)
+        if action is not None and prior is not None:
+            prev_mean = np.asarray(prior.prediction["mean"][0], dtype=np.float64)
+            prev_cov = np.asarray(prior.prediction["cov"][0], dtype=np.float64)
             observed = np.array([action.steering_rate, action.acceleration], dtype=np.float64)
             belief = update_belief(belief, observed, prev_mean, prev_cov, config["epsilon"])
-            scored = True
+        dt = request.prediction.dt
         bounds = fit_bounds(
-            mean,
-            cov,
-            request.prediction.dt,
-            belief.beta,
-            config["gamma"],
-            config["bounds_fit"],
-            settings,
+            mean, cov, dt, belief.beta, config["gamma"], config["bounds_fit"], settings
         )
         check_ranges(engine, request.state.speed, bounds, bounds_field="prediction")
         return AgentState(
@@ -146,11 +145,22 @@ async def observe(
             heading=request.state.heading,
             speed=request.state.speed,
             belief=belief.to_dict(),
-            prediction={"dt": request.prediction.dt, "mean": mean.tolist(), "cov": cov.tolist()},
+            prediction={"dt": dt, "mean": mean.tolist(), "cov": cov.tolist()},
             control_bounds=[float(b) for b in bounds],
             config=overrides,
-            frt_version=(previous.frt_version + 1) if previous else 1,
+            frt_version=(prior.frt_version + 1) if prior else 1,
         )
+
+    def first_try() -> tuple[np.ndarray, np.ndarray, AgentState]:
+        mean, cov = validated_prediction(request.prediction, settings)
+        return mean, cov, build(previous, mean, cov)
+
+    mean, cov, candidate = await run_in_threadpool(first_try)
+
+    def apply(current: AgentState | None) -> AgentState:
+        if _same(current, previous):
+            return candidate
+        return build(current, mean, cov)
 
     state = await services.store.update(agent_id, apply, timestamp=request.timestamp)
     services.submit(services.job_for(state))
@@ -163,8 +173,15 @@ async def observe(
         belief=probs,
         control_bounds=ControlBoundsOut.from_list(state.control_bounds),
         frt_version=state.frt_version,
-        action_scored=scored,
+        # A previous state existed exactly when the version went past 1.
+        action_scored=request.observed_action is not None and state.frt_version > 1,
     )
+
+
+def _same(a: AgentState | None, b: AgentState | None) -> bool:
+    if a is None or b is None:
+        return a is b
+    return a.to_dict() == b.to_dict()
 
 
 def check_ranges(engine: FRTEngine, v_start: float, bounds: np.ndarray, bounds_field: str) -> None:

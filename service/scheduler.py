@@ -39,6 +39,30 @@ class FRTKey:
         return cls(agent_id, version, hashlib.blake2b(packed, digest_size=12).hexdigest())
 
 
+class LRUCache:
+    """A small thread-safe least-recently-used map (for the conservative sets)."""
+
+    def __init__(self, size: int) -> None:
+        self._size = size
+        self._items: OrderedDict[FRTKey, Any] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def get_or_compute(self, key: FRTKey, compute: Callable[[], Any]) -> tuple[Any, bool]:
+        """The cached value for ``key`` or ``compute()`` (cached); and whether it was a hit."""
+        with self._lock:
+            value = self._items.get(key)
+            if value is not None:
+                self._items.move_to_end(key)
+                return value, True
+        value = compute()  # outside the lock: two racing misses both compute, harmlessly
+        with self._lock:
+            self._items[key] = value
+            self._items.move_to_end(key)
+            while len(self._items) > self._size:
+                self._items.popitem(last=False)
+        return value, False
+
+
 class FRTScheduler:
     def __init__(self, *, workers: int, cache_size: int, metrics: Metrics) -> None:
         self._workers = workers

@@ -19,7 +19,7 @@ from service.engine import FRTEngine, FRTSet, Pose
 from service.errors import ServiceUnavailableError
 from service.metrics import Metrics
 from service.model_runtime import ValueModel
-from service.scheduler import FRTKey, FRTScheduler
+from service.scheduler import FRTKey, FRTScheduler, LRUCache
 from service.settings import Settings
 from service.store import AgentState, AgentStore, make_store
 
@@ -48,6 +48,7 @@ class Services:
     metrics: Metrics
     store: AgentStore
     scheduler: FRTScheduler
+    conservative_cache: LRUCache
     engine: FRTEngine | None = None
     model_name: str | None = None
     model_error: str | None = "model is loading"
@@ -62,7 +63,13 @@ class Services:
         scheduler = FRTScheduler(
             workers=settings.frt_workers, cache_size=settings.frt_cache_size, metrics=metrics
         )
-        return cls(settings=settings, metrics=metrics, store=store, scheduler=scheduler)
+        return cls(
+            settings=settings,
+            metrics=metrics,
+            store=store,
+            scheduler=scheduler,
+            conservative_cache=LRUCache(settings.frt_cache_size),
+        )
 
     # ------------------------------------------------------------------ lifecycle
     async def start(self) -> None:
@@ -124,12 +131,22 @@ class Services:
         )
 
     def conservative(self, job: FRTJob) -> FRTSet:
-        """The engine's fast set that contains the exact one (blocking: call from a thread)."""
+        """The engine's fast set that contains the exact one (blocking: call from a thread).
+
+        Cached per key too: a planner checking an agent at 10 Hz while its exact set is late
+        (e.g. 50 agents in one multi-agent check) builds each conservative set once.
+        """
         engine = self.require_engine()
-        start = time.perf_counter()
-        result = engine.conservative(job.pose, job.v_start, job.bounds)
-        self.metrics.frt_compute_seconds.labels("conservative").observe(time.perf_counter() - start)
-        return result
+
+        def compute() -> FRTSet:
+            start = time.perf_counter()
+            result = engine.conservative(job.pose, job.v_start, job.bounds)
+            elapsed = time.perf_counter() - start
+            self.metrics.frt_compute_seconds.labels("conservative").observe(elapsed)
+            return result
+
+        result, _ = self.conservative_cache.get_or_compute(job.key, compute)
+        return result  # type: ignore[no-any-return]
 
     def horizon_s(self) -> float:
         engine = self.engine

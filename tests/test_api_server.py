@@ -10,6 +10,7 @@ import json
 import math
 import time
 import uuid
+from concurrent.futures import ThreadPoolExecutor
 
 import httpx
 import numpy as np
@@ -86,6 +87,27 @@ def test_stale_timestamp_is_409_and_keeps_state(http: httpx.Client) -> None:
         r = http.post(f"/v1/agents/{agent}/observations", json=observation(stale))
         assert r.status_code == 409 and "stale" in r.json()["detail"]
     assert http.get(f"/v1/agents/{agent}").json()["frt_version"] == 1
+
+
+def test_concurrent_observations_of_one_agent_lose_no_update(live_server: LiveServer) -> None:
+    """Racing observations: each is either applied (and counted in the version) or refused as
+    stale (409, when a later timestamp won the race); the final state is the latest accepted."""
+    agent = new_agent()
+    timestamps = [float(t) for t in range(1, 25)]
+
+    def send(t: float) -> int:
+        with httpx.Client(base_url=live_server.url, timeout=10.0) as client:
+            body = observation(t, action=(0.1, 0.2))
+            return client.post(f"/v1/agents/{agent}/observations", json=body).status_code
+
+    with ThreadPoolExecutor(8) as pool:
+        statuses = dict(zip(timestamps, pool.map(send, timestamps), strict=True))
+    assert set(statuses.values()) <= {200, 409}
+    accepted = [t for t, status in statuses.items() if status == 200]
+    with httpx.Client(base_url=live_server.url, timeout=10.0) as client:
+        view = client.get(f"/v1/agents/{agent}").json()
+    assert view["frt_version"] == len(accepted)
+    assert view["timestamp"] == max(accepted)
 
 
 def test_per_agent_config_is_echoed_and_used(http: httpx.Client) -> None:

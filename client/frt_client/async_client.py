@@ -24,8 +24,7 @@ T = TypeVar("T", bound=Response)
 class AsyncFRTClient(AsyncOperations):
     """An asyncio client of the FRT service; share one per event loop (httpx pools connections).
 
-    Args are those of :class:`~frt_client.FRTClient`, plus ``limits`` (``httpx.Limits``) for the
-    connection pool. Use ``async with AsyncFRTClient(url) as frt:`` or ``await frt.aclose()``.
+    Args are those of :class:`~frt_client.FRTClient`. Use ``async with AsyncFRTClient(url) as frt:`` or ``await frt.aclose()``.
     Every method raises a subclass of :class:`~frt_client.errors.FRTError` on failure.
     """
 
@@ -47,7 +46,7 @@ class AsyncFRTClient(AsyncOperations):
             base_url=self.base_url,
             timeout=self.timeout,
             headers=wire.headers(token, headers),
-            limits=limits or httpx.Limits(max_connections=100, max_keepalive_connections=20),
+            limits=limits or wire.DEFAULT_LIMITS,
         )
 
     # ------------------------------------------------------------------ lifecycle

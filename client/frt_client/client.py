@@ -28,6 +28,8 @@ class FRTClient(Operations):
         timeout: seconds (or an ``httpx.Timeout``) for every request; required, never infinite.
         retry: when to resend (see :class:`~frt_client.retry.RetryPolicy`); ``NO_RETRY`` disables.
         headers: extra headers for every request.
+        limits: the connection pool (``httpx.Limits``); keep ``keepalive_expiry`` below the
+            server's keep-alive timeout.
 
     Use it as a context manager, or call :meth:`close`::
 
@@ -46,13 +48,17 @@ class FRTClient(Operations):
         timeout: wire.TimeoutLike = wire.DEFAULT_TIMEOUT,
         retry: RetryPolicy | None = None,
         headers: dict[str, str] | None = None,
+        limits: httpx.Limits | None = None,
     ) -> None:
         self.base_url = wire.base_url(base_url)
         self.token = token
         self.timeout = wire.timeout(timeout)
         self.retry = retry if retry is not None else RetryPolicy()
         self._http = httpx.Client(
-            base_url=self.base_url, timeout=self.timeout, headers=wire.headers(token, headers)
+            base_url=self.base_url,
+            timeout=self.timeout,
+            headers=wire.headers(token, headers),
+            limits=limits or wire.DEFAULT_LIMITS,
         )
 
     # ------------------------------------------------------------------ lifecycle

@@ -18,6 +18,12 @@ DEFAULT_URL = "http://127.0.0.1:8000"
 #: Explicit timeouts: 2 s to connect, 5 s for anything else (read, write, pool). A collision check
 #: answers within its ``deadline_ms`` (20 ms by default), so 5 s only catches a dead service.
 DEFAULT_TIMEOUT = httpx.Timeout(5.0, connect=2.0)
+#: Pooled connections. Idle ones are dropped after 2 s, before the server's keep-alive timeout
+#: (uvicorn's default is 5 s, the same as httpx's default expiry): otherwise a request can race
+#: the server closing the connection and fail with a ReadError it never had to.
+DEFAULT_LIMITS = httpx.Limits(
+    max_connections=100, max_keepalive_connections=20, keepalive_expiry=2.0
+)
 USER_AGENT = "frt-client/0.1"
 
 TimeoutLike = float | httpx.Timeout | None

@@ -1,8 +1,9 @@
 """Collision checks (API.md, "Collision check") within a deadline.
 
-Each agent's answer comes from the exact FRT of its current version if that is ready before the
-deadline (measured from the request's arrival, less ``deadline_reserve_ms``), else from the engine's
-conservative set, which contains the exact one (``conservative: true``). Clearance is the signed
+Each agent's answer comes from the exact FRT of its current version if that is ready in time, else
+from the engine's conservative set, which contains the exact one (``conservative: true``). "In time"
+is :func:`wait_budget_s`: the deadline runs from the request's arrival, and part of it is kept for
+answering conservatively and for the trip back. Sets still queued behind others are not waited for. Clearance is the signed
 distance to K minus R_col: negative inside C.
 """
 
@@ -29,6 +30,7 @@ from service.schemas import (
     TrajectoryPoint,
 )
 from service.services import FRTJob, Services
+from service.settings import Settings
 from service.store import AgentState
 
 #: Clearances are clipped to +-this (metres) so that "no set at all" (infinite distance) stays JSON.
@@ -59,9 +61,13 @@ def answer(
     )
 
 
-def remaining_s(arrival: float, deadline_ms: float, reserve_ms: float) -> float:
-    """Seconds left to wait for an exact set before answering conservatively."""
-    return deadline_ms / 1000.0 - (time.perf_counter() - arrival) - reserve_ms / 1000.0
+def wait_budget_s(arrival: float, deadline_ms: float, settings: Settings) -> float:
+    """Seconds to wait for an exact set before answering conservatively: at most
+    ``deadline_wait_fraction`` of the deadline, and never into the last ``deadline_reserve_ms``."""
+    deadline_s = deadline_ms / 1000.0
+    elapsed = time.perf_counter() - arrival
+    until_reserve = deadline_s - elapsed - settings.deadline_reserve_ms / 1000.0
+    return min(until_reserve, settings.deadline_wait_fraction * deadline_s - elapsed)
 
 
 async def answer_states(
@@ -74,8 +80,10 @@ async def answer_states(
     services.require_engine()
     deadline_ms = request.deadline_ms or settings.deadline_ms
     jobs = [services.job_for(state) for state in states]
-    budget = remaining_s(arrival, deadline_ms, settings.deadline_reserve_ms)
-    exact = await asyncio.gather(*(services.exact_within(job, budget) for job in jobs))
+    budget = wait_budget_s(arrival, deadline_ms, settings)
+    exact = await asyncio.gather(
+        *(services.exact_within(job, budget, wait_if_queued=False) for job in jobs)
+    )
 
     def compute() -> list[CollisionCheckResponse]:
         return [

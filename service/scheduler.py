@@ -117,10 +117,19 @@ class FRTScheduler:
             fut.add_done_callback(lambda f: self._done(key, f))
             return fut
 
-    async def wait(self, key: FRTKey, compute: Callable[[], Any], timeout_s: float) -> Any | None:
+    async def wait(
+        self,
+        key: FRTKey,
+        compute: Callable[[], Any],
+        timeout_s: float,
+        *,
+        wait_if_queued: bool = True,
+    ) -> Any | None:
         """The exact set for ``key`` if it is (or becomes) ready within ``timeout_s``, else ``None``.
 
-        Never cancels the computation: a late result still lands in the cache for the next caller.
+        With ``wait_if_queued=False`` a set that is still queued behind others (submitted earlier,
+        not yet started) is not waited for: it would rarely finish within a collision check's
+        deadline. Never cancels the computation: a late result still lands in the cache.
         """
         cached = self.lookup(key)
         if cached is not None:
@@ -129,7 +138,10 @@ class FRTScheduler:
         with self._lock:
             under_way = key in self._pending
         self._metrics.frt_cache.labels("pending" if under_way else "miss").inc()
-        future = asyncio.wrap_future(self.submit(key, compute))
+        submitted = self.submit(key, compute)
+        if under_way and not wait_if_queued and not (submitted.running() or submitted.done()):
+            return None
+        future = asyncio.wrap_future(submitted)
         if timeout_s > 0:
             await asyncio.wait({future}, timeout=timeout_s)
         if future.done() and not future.cancelled() and future.exception() is None:

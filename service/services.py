@@ -123,11 +123,16 @@ class Services:
         engine = self.require_engine()
         self.scheduler.submit(job.key, lambda: engine.exact(job.pose, job.v_start, job.bounds))
 
-    async def exact_within(self, job: FRTJob, timeout_s: float) -> FRTSet | None:
+    async def exact_within(
+        self, job: FRTJob, timeout_s: float, *, wait_if_queued: bool = True
+    ) -> FRTSet | None:
         """The exact set if it is ready within ``timeout_s`` (starting it if nobody has), else None."""
         engine = self.require_engine()
         return await self.scheduler.wait(
-            job.key, lambda: engine.exact(job.pose, job.v_start, job.bounds), timeout_s
+            job.key,
+            lambda: engine.exact(job.pose, job.v_start, job.bounds),
+            timeout_s,
+            wait_if_queued=wait_if_queued,
         )
 
     def conservative(self, job: FRTJob) -> FRTSet:

@@ -42,7 +42,9 @@ class Settings(BaseSettings):
     frt_cache_size: int = Field(1024, ge=1)
     #: Default deadline of a collision check, measured from the request's arrival.
     deadline_ms: float = Field(20.0, gt=0.0, le=60_000.0)
-    #: Part of a deadline kept back to answer from the conservative set when the exact one is late.
+    #: A check waits for a late exact set for at most this fraction of its deadline ...
+    deadline_wait_fraction: float = Field(0.5, ge=0.0, le=1.0)
+    #: ... and never into the deadline's last milliseconds, kept to answer conservatively.
     deadline_reserve_ms: float = Field(1.0, ge=0.0)
     #: How long contours and the stateless endpoint wait for an exact set before going conservative.
     exact_timeout_s: float = Field(5.0, gt=0.0)

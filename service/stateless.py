@@ -7,7 +7,7 @@ import numpy as np
 from starlette.concurrency import run_in_threadpool
 
 from service.agents import check_ranges, fit_bounds, validated_prediction
-from service.checks import answer, remaining_s
+from service.checks import answer, wait_budget_s
 from service.contours import build
 from service.engine import Pose
 from service.errors import FieldError
@@ -60,7 +60,7 @@ async def stateless_frt(services: Services, request: FRTRequest, arrival: float)
     state = request.state
     job = FRTJob.make("", 0, Pose(state.x, state.y, state.heading), state.speed, bounds)
     if request.deadline_ms is not None:
-        wait_s = remaining_s(arrival, request.deadline_ms, settings.deadline_reserve_ms)
+        wait_s = wait_budget_s(arrival, request.deadline_ms, settings)
     else:
         wait_s = settings.exact_timeout_s
     exact = await services.exact_within(job, wait_s)

@@ -88,3 +88,19 @@ def test_forget_drops_an_agents_sets(scheduler: FRTScheduler) -> None:
     run(scheduler, key("a", 1), 1)
     scheduler.forget("a")
     assert not scheduler.is_ready(key("a", 1))
+
+
+def test_queued_sets_are_not_waited_for_by_collision_checks(scheduler: FRTScheduler) -> None:
+    gate = threading.Event()
+    scheduler.submit(key("busy", 1), lambda: gate.wait(5))  # occupies the only worker
+    scheduler.submit(key("q", 1), lambda: "late")  # queued behind it
+
+    async def scenario() -> None:
+        loop = asyncio.get_running_loop()
+        start = loop.time()
+        assert await scheduler.wait(key("q", 1), lambda: "late", 2.0, wait_if_queued=False) is None
+        assert loop.time() - start < 0.5
+        gate.set()
+        assert await scheduler.wait(key("q", 1), lambda: "late", 5.0) == "late"
+
+    asyncio.run(scenario())

@@ -4,11 +4,13 @@ from __future__ import annotations
 
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
+from typing import Any
 
 from fastapi import Depends, FastAPI
 
 from service.auth import BearerAuthMiddleware, bearer_scheme
 from service.errors import install_error_handlers
+from service.limits import openapi_with_limits
 from service.logs import configure_logging
 from service.middleware import BodySizeLimitMiddleware, RequestContextMiddleware
 from service.routes import agents, collision, contours, health, model, stateless, stream
@@ -44,6 +46,15 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.add_middleware(
         RequestContextMiddleware, metrics=services.metrics, log_requests=settings.log_requests
     )
+
+    generate_openapi = app.openapi
+
+    def openapi() -> dict[str, Any]:
+        if app.openapi_schema is None:
+            app.openapi_schema = openapi_with_limits(generate_openapi(), settings)
+        return app.openapi_schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
 
     app.include_router(health.router)
     documented_auth = [Depends(bearer_scheme)]

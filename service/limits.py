@@ -6,6 +6,7 @@ The schemas carry fixed hard caps; these are the tighter, configurable ones.
 from __future__ import annotations
 
 from collections.abc import Sized
+from typing import Any
 
 from service.errors import FieldError
 from service.settings import Settings
@@ -33,3 +34,28 @@ def check_slices(field: str, slices: list[float], horizon_s: float, settings: Se
     for i, t in enumerate(slices):
         if not 0.0 <= t <= horizon_s:
             raise FieldError(f"{field}.{i}", f"slice time {t} is outside [0, {horizon_s}] s")
+
+
+def openapi_with_limits(spec: dict[str, Any], settings: Settings) -> dict[str, Any]:
+    """Write the settings' limits into the schema's ``maxItems`` (the models carry the hard caps),
+    so clients and fuzzers see the limits this server enforces."""
+    limits = {
+        "mean": settings.max_prediction_steps,
+        "cov": settings.max_prediction_steps,
+        "trajectory": settings.max_trajectory_points,
+        "agent_ids": settings.max_agents_per_check,
+        "slices": settings.max_slices,
+    }
+
+    def tighten(schema: Any, limit: int) -> None:
+        if isinstance(schema, dict):
+            if schema.get("type") == "array" and "maxItems" in schema:
+                schema["maxItems"] = min(schema["maxItems"], limit)
+            for option in schema.get("anyOf", []):
+                tighten(option, limit)
+
+    for component in spec.get("components", {}).get("schemas", {}).values():
+        for name, prop in component.get("properties", {}).items():
+            if name in limits:
+                tighten(prop, limits[name])
+    return spec

@@ -29,6 +29,7 @@ async def stream_socket(websocket: WebSocket) -> None:
                     text = data.decode()
                 except UnicodeDecodeError:
                     text = ""
-            await websocket.send_json(await stream.handle(services, text, arrival))
-    except WebSocketDisconnect:
+            answer = await stream.handle(services, text, arrival)
+            await websocket.send_json(answer)
+    except (WebSocketDisconnect, OSError):  # the client went away, possibly mid-answer
         return

@@ -96,7 +96,7 @@ class AsyncStream(AsyncOperations):
         try:
             await ws.send(protocol.encode(call, message_id))
             answer = await asyncio.wait_for(future, self.timeout)
-        except TimeoutError:
+        except (TimeoutError, asyncio.TimeoutError):  # noqa: UP041 - distinct types on Python 3.10
             raise DeadlineError(f"{call.op}: no answer within {self.timeout} s") from None
         except ConnectionClosed as exc:
             raise UnavailableError(f"stream closed: {exc}", detail=str(exc)) from exc

@@ -85,11 +85,13 @@ redis.call('ZREM', KEYS[2], ARGV[1])
 return redis.call('DEL', KEYS[1])
 """
 
-# KEYS: index key. Drops expired ids and returns the live ones, oldest expiry first.
-_LIVE_IDS_LUA = """
+# KEYS: index key. ARGV: 'ids' or 'count'. Drops expired ids, then returns the live ones (oldest
+# expiry first) or their number.
+_LIVE_LUA = """
 local t = redis.call('TIME')
 local now = tonumber(t[1]) * 1000 + math.floor(tonumber(t[2]) / 1000)
 redis.call('ZREMRANGEBYSCORE', KEYS[1], '-inf', now)
+if ARGV[1] == 'count' then return redis.call('ZCARD', KEYS[1]) end
 return redis.call('ZRANGE', KEYS[1], 0, -1)
 """
 
@@ -164,7 +166,7 @@ class RedisAgentStore:
         self._redis: Redis = Redis.from_pool(pool)
         self._update_script = self._redis.register_script(_UPDATE_LUA)
         self._delete_script = self._redis.register_script(_DELETE_LUA)
-        self._live_ids_script = self._redis.register_script(_LIVE_IDS_LUA)
+        self._live_script = self._redis.register_script(_LIVE_LUA)
         #: Compare-and-set attempts refused because another writer got there first (for tests
         #: and metrics): proof that concurrent updates really raced.
         self.conflicts = 0
@@ -247,10 +249,10 @@ class RedisAgentStore:
         return bool(deleted)
 
     async def ids(self) -> list[str]:
-        return list(await self._call(lambda: self._live_ids_script(keys=[self._index])))
+        return list(await self._call(lambda: self._live_script(keys=[self._index], args=["ids"])))
 
     async def count(self) -> int:
-        return len(await self.ids())
+        return int(await self._call(lambda: self._live_script(keys=[self._index], args=["count"])))
 
     async def close(self) -> None:
         await self._redis.aclose()

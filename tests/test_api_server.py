@@ -169,7 +169,7 @@ def test_time_indexed_mode_uses_the_tube_up_to_t(http: httpx.Client) -> None:
     w = growth_rate(bounds)
     # 12 m ahead: reached only after ~(12 - 0.5 - 1.5) / (v + w) s, so clear at t = 0.5, hit at 3.
     point = ahead(0.0, 0.0, 0.0, 12.0)
-    trajectory = [{"t": 0.5, **point}, {"t": 3.0, **point}]
+    trajectory = [{"t": 0.5, **point}, {"t": 3.0, **point}, {"t": 0.0, "x": 0.0, "y": 0.0}]
     body = http.post(
         f"/v1/agents/{agent}/collision-check",
         json={"trajectory": trajectory, "mode": "time_indexed", "deadline_ms": 1000},
@@ -178,6 +178,7 @@ def test_time_indexed_mode_uses_the_tube_up_to_t(http: httpx.Client) -> None:
     clear_at_half = 12.0 - (speed * 0.5 + 0.5 + w * 0.5) - 1.5
     assert body["clearance"][0] == pytest.approx(clear_at_half, abs=tube_tolerance(speed, bounds))
     assert body["clearance"][0] > 0 and body["clearance"][1] < 0
+    assert body["clearance"][2] < 0  # the human's own position is inside C at t = 0
     assert body["first_collision_index"] == 1 and body["first_collision_time"] == 3.0
     tube = http.post(
         f"/v1/agents/{agent}/collision-check", json={"trajectory": trajectory, "mode": "tube"}

@@ -48,7 +48,8 @@ Handler = Callable[[Services, dict[str, Any], float], Awaitable[BaseModel | dict
 
 
 def _pop_agent_id(message: dict[str, Any], required: bool) -> str | None:
-    if "agent_id" not in message:
+    if message.get("agent_id") is None:  # absent or null
+        message.pop("agent_id", None)
         if required:
             raise APIError(422, "agent_id is required for this op", field="agent_id")
         return None

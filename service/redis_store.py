@@ -17,9 +17,10 @@ updates of one agent from any number of replicas are serialised and none is lost
 therefore run more than once per update: it must be pure (no side effects beyond its result).
 
 Redis being down or restarting is retried for ``unavailable_wait_s`` and then answered as a 503
-(:class:`~service.errors.ServiceUnavailableError`, with ``Retry-After``), never as a 500. A write
-whose reply was lost with the connection is recognised on the next read (the stored value is the
-one this update wrote) and reported as done, not applied twice.
+(:class:`~service.errors.ServiceUnavailableError`, with ``Retry-After``: nothing was written), never
+as a 500. A write whose reply was lost with the connection is recognised on the next read (the
+stored value is the one this update wrote) and reported as done, not applied twice; if Redis stays
+away past the wait, its fate is unknown and the answer is a 504 (:class:`StoreOutcomeUnknownError`).
 
 The two keys an update touches are not in one hash slot: this is for a single Redis (with replicas
 or Sentinel), not Redis Cluster.
@@ -41,7 +42,7 @@ from redis.asyncio import BlockingConnectionPool, Redis
 from redis.asyncio.retry import Retry
 from redis.backoff import NoBackoff
 
-from service.errors import ServiceUnavailableError, StaleTimestampError
+from service.errors import APIError, ServiceUnavailableError, StaleTimestampError
 from service.store import AgentState, StoreFullError, UpdateFn
 
 T = TypeVar("T")
@@ -94,6 +95,19 @@ redis.call('ZREMRANGEBYSCORE', KEYS[1], '-inf', now)
 if ARGV[1] == 'count' then return redis.call('ZCARD', KEYS[1]) end
 return redis.call('ZRANGE', KEYS[1], 0, -1)
 """
+
+
+class StoreOutcomeUnknownError(APIError):
+    """504: Redis went away after an update was sent and before it answered, and did not come back
+    within the wait. The update may or may not be stored: resending it is safe (a 409 then says it
+    was). Not a 503, which tells clients that nothing happened."""
+
+    def __init__(self, agent_id: str, exc: Exception) -> None:
+        super().__init__(
+            504,
+            f"agent store did not confirm the update of agent {agent_id!r} ({exc}); it may or "
+            "may not be stored: resend it (409 means it was)",
+        )
 
 
 def encode_state(state: AgentState) -> str:
@@ -226,6 +240,8 @@ class RedisAgentStore:
                 )
                 unconfirmed = None
             except _UNAVAILABLE as exc:
+                if unconfirmed is not None and time.monotonic() >= deadline:
+                    raise StoreOutcomeUnknownError(agent_id, exc) from exc
                 deadline = await self._wait_or_raise(exc, deadline)
                 continue
             if outcome == "ok":

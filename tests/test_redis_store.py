@@ -368,6 +368,27 @@ def test_a_lost_reply_is_not_applied_twice(redis_server: RedisServer) -> None:
     run(go())
 
 
+def test_an_unconfirmed_write_past_the_wait_is_a_504(redis_server: RedisServer) -> None:
+    """Sent, never answered, Redis not back in time: the outcome is unknown, so not a 503."""
+    import redis.exceptions
+
+    from service.redis_store import StoreOutcomeUnknownError
+
+    async def go() -> None:
+        store = make(redis_server, unavailable_wait_s=0.2)
+
+        async def lost(**_kwargs: Any) -> Any:
+            raise redis.exceptions.ConnectionError("connection lost after EVALSHA")
+
+        store._update_script = lost
+        with pytest.raises(StoreOutcomeUnknownError) as info:
+            await store.update("a", bump)
+        assert info.value.status == 504 and "resend" in info.value.detail
+        await store.close()
+
+    run(go())
+
+
 def test_redis_down_is_a_503_not_a_500() -> None:
     from service.redis_store import RedisAgentStore
 

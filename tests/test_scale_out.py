@@ -3,21 +3,24 @@
 redis-server (append-only file on) and nginx come from Debian's packages (installed if missing);
 nginx runs docker/nginx.conf itself, with only the upstream addresses, the listen port and its temp
 paths rewritten. Three uvicorn replicas of ``service.app:app`` share agent state through Redis
-(``FRT_STORE_URL``) and serve the analytic fixture model. A bounded driver (planners, one per human:
-observations, collision checks and reads, each human's observations strictly in order) runs through
-nginx while the test
+(``FRT_STORE_URL``) and serve the analytic fixture model. Two loads run through nginx at once for
+~34 s: the team's load harness (scripts/load.py: humans observed at 4 Hz, a planner checking all of
+them at 10 Hz, its own beta verification at the end) and this test's probes (one per human:
+observation, collision check and read, each answer checked against the probe's own filter). The
+test meanwhile
 
 1. SIGKILLs one replica mid-run, and later
 2. SIGKILLs Redis and restarts it on the same files (state comes back from the AOF).
 
 It asserts: no observation lost (each agent's beta, timestamp and FRT version on the server equal
-what the driver computes itself with ``service.confidence`` from what it sent), no answer wrong
-(every 200 carries the beta and FRT version of the agent's last acknowledged observation: no replica
-answers from stale state), errors only for requests in flight to the killed replica (traced by
-request id through nginx's access log) or while Redis was down, and the survivors keep answering.
-It prints latency p50/p99 per operation and phase, and error counts (quoted in docs/deploy.md).
+what the probe, and the harness, compute themselves with ``service.confidence`` from what they
+sent), no answer wrong (every 200 carries the beta and FRT version of the agent's last acknowledged
+observation: no replica answers from stale state), every 5xx nginx logged was in flight to the killed
+replica or fell while Redis was down, and the survivors keep answering. It prints latency p50/p99
+per operation and phase, error counts and the survivors' deadline counters (quoted in
+docs/deploy.md).
 
-Run alone: ``make scale-test`` (about a minute). Bounded: ~36 s of load, loopback only.
+Run alone: ``make scale-test`` (under a minute). Bounded: ~34 s of load, loopback only.
 """
 
 from __future__ import annotations

@@ -10,8 +10,8 @@ flight, so the offered load is bounded; the run stops by itself after ``--durati
 
 At the end it verifies, for every human, that the service holds exactly the β the harness computes
 from what it sent (with the service's own filter, ``service.confidence``), the FRT version equal to
-the number of observations accepted, and the last timestamp sent: a lost or reordered update
-shows. It prints throughput and p50/p95/p99/max latency per operation, errors and deadline misses,
+the number of observations accepted, and the last timestamp sent; and each observation's answer
+must carry the β and version expected at that moment. A lost or reordered update shows. It prints throughput and p50/p95/p99/max latency per operation, errors and deadline misses,
 writes a JSON summary (``--out``, default results/load.json) and a latency plot beside it (.png).
 Exit status: 0 clean, 1 errors or lost updates, 2 refused arguments or service not ready.
 
@@ -208,6 +208,16 @@ class Expected:
     uncertain: bool = False
     beta_low: float | None = None
     epsilon: float | None = None
+    #: Answers whose beta or version differed from the expectation at that moment.
+    answers_off: int = 0
+    lowest_beta: float = 1.0
+
+    def check_answer(self, beta: float, frt_version: int) -> None:
+        """Compare one observation's answer with the expectation just updated."""
+        assert self.belief is not None
+        if abs(beta - self.belief.beta) > BETA_TOLERANCE or frt_version != self.accepted:
+            self.answers_off += 1
+        self.lowest_beta = min(self.lowest_beta, beta)
 
     def accept(
         self, action: tuple[float, float] | None, prediction: dict[str, Any], timestamp: float
@@ -293,7 +303,7 @@ async def perceive(
         state = (human.x, human.y, human.heading, human.speed)
         started = time.perf_counter()
         try:
-            await ops.observe(
+            answer = await ops.observe(
                 human.agent_id,
                 timestamp=t,
                 state=state,
@@ -305,8 +315,10 @@ async def perceive(
             if exc.status is None or (exc.status >= 500 and exc.status != 503):
                 expected.uncertain = True  # it may or may not have been applied
         else:
-            expected.accept(action, prediction, t)
             stats.record("observe", t, time.perf_counter() - started)
+            expected.accept(action, prediction, t)
+            if not expected.uncertain:
+                expected.check_answer(answer.beta, answer.frt_version)
         last_t = t
 
 
@@ -405,6 +417,8 @@ async def verify(
         "agents": len(humans),
         "verified": len(humans) - len(unverifiable),
         "lost_updates": len(mismatches),
+        "answers_off": sum(e.answers_off for e in expectations.values()),
+        "lowest_beta_answered": min(e.lowest_beta for e in expectations.values()),
         "unverifiable": unverifiable,
         "mismatches": mismatches[:20],
         "max_beta_diff": max_diff,
@@ -478,7 +492,8 @@ def print_report(summary: dict[str, Any]) -> None:
     v = summary["verification"]
     print(
         f"beta check: {v['verified']}/{v['agents']} agents verified, lost or reordered updates: "
-        f"{v['lost_updates']}, max |beta - expected| = {v['max_beta_diff']:.2e}"
+        f"{v['lost_updates']}, answers off: {v['answers_off']}, max |beta - expected| = "
+        f"{v['max_beta_diff']:.2e} (lowest beta answered {v['lowest_beta_answered']:.3f})"
         + (f", unverifiable: {len(v['unverifiable'])}" if v["unverifiable"] else "")
     )
     for sample in summary["error_samples"]:
@@ -605,7 +620,9 @@ async def run(args: argparse.Namespace) -> tuple[dict[str, Any], Stats]:
         },
         "skipped_ticks": stats.skipped_ticks,
         "verification": verification,
-        "ok": errors == 0 and verification["lost_updates"] == 0,
+        "ok": errors == 0
+        and verification["lost_updates"] == 0
+        and verification["answers_off"] == 0,
         "finished_at": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
     }  # fmt: skip
     return summary, stats

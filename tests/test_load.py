@@ -51,6 +51,7 @@ def test_a_short_load_run_has_no_errors_and_no_lost_updates(
     assert summary["ok"] and summary["errors"] == 0
     verification = summary["verification"]
     assert verification["lost_updates"] == 0 and verification["verified"] == 4
+    assert verification["answers_off"] == 0
     assert verification["max_beta_diff"] <= 1e-9
     ops = summary["operations"]
     assert ops["observe"]["count"] >= 4 * 5 * 5 // 2  # at least half the scheduled observations

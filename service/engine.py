@@ -163,12 +163,23 @@ class BoxTubeSet(FRTSet):
             idx = [self.tube_index(float(t)) for t in np.asarray(t_rel).reshape(-1)]
             n = self.boxes_until[np.array(idx, dtype=int)]
         mask = np.arange(len(b))[None, :] < n[:, None]
-        return np.where(mask, distance, np.inf).min(axis=1)
+        result = np.where(mask, distance, np.inf).min(axis=1)
+        for row in np.nonzero(result < 0)[0]:  # inside: the depth in the union, not in one box
+            geometry = self._union(int(np.searchsorted(self.boxes_until, n[row])))
+            result[row] = signed_distance(geometry, xy[row : row + 1])[0]
+        return result
+
+    def _union(self, j: int) -> BaseGeometry:
+        if j not in self._world_cache:
+            self._world_cache[j] = shapely.union_all(
+                [_box(b) for b in self.boxes[: self.boxes_until[j]]]
+            )
+        return self._world_cache[j]
 
     def geometry(self, kind: str, t: float | None = None) -> BaseGeometry:
         if kind == "tube":
             j = len(self.boxes_until) - 1 if t is None else self.tube_index(t)
-            return shapely.union_all([_box(b) for b in self.boxes[: self.boxes_until[j]]])
+            return self._union(j)
         if kind == "slice":
             j = round(min(max(t or 0.0, 0.0), self.horizon_s) / self.slice_dt)
             return _box(self.boxes[self.slice_boxes[min(j, len(self.slice_boxes) - 1)]])
@@ -272,16 +283,13 @@ class FRTEngine:
         )
 
     def _interval_boxes(self, ob: OuterBound) -> list[BaseGeometry]:
-        """Per slice j, a box containing every position during [s_j - dt/2, s_j + dt/2]."""
+        """Per slice j, boxes whose union contains every position during [s_j - dt/2, s_j + dt/2]."""
         k = self.outer_steps_per_slice
         boxes = []
         for j in range(self.n_slices):
             lo, hi = max(j * k - k // 2, 0), min(j * k + (k + 1) // 2, len(ob.sweep))
-            window = ob.sweep[lo:hi]
-            merged = np.array(
-                [window[:, 0].min(), window[:, 1].max(), window[:, 2].min(), window[:, 3].max()]
-            )
-            boxes.append(_box(merged))
+            # The union, not the bounding box: the conservative tube is this same union.
+            boxes.append(shapely.union_all([_box(b) for b in ob.sweep[lo:hi]]))
         return boxes
 
     def conservative(self, pose: Pose, v_start: float, bounds: np.ndarray) -> FRTSet:

@@ -221,12 +221,6 @@ def test_a_late_exact_set_gives_a_conservative_answer_in_time(http: httpx.Client
     assert all(f < 0 for f, e in zip(fast["clearance"], exact["clearance"], strict=True) if e < 0)
 
 
-@pytest.mark.xfail(
-    strict=False,
-    reason="engine: the exact tube is clipped to the bounding box of two outer-bound boxes, whose "
-    "corners stick out of the conservative union of boxes by up to ~3 cm (service/engine.py, "
-    "FRTEngine.exact: intersect with the union of the window's boxes instead)",
-)
 def test_the_fallback_set_contains_the_exact_set(http: httpx.Client) -> None:
     """Containment: every point is at most as far from the conservative set as from the exact."""
     fast, exact = fallback_then_exact(http)

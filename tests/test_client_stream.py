@@ -68,8 +68,15 @@ def test_every_operation_over_the_blocking_stream(stream: Stream) -> None:
     assert many.by_agent()[agent].collision and not many.by_agent()[other].collision
     assert agent in stream.collision_check_many(trajectory).by_agent()
 
-    shapes = stream.contours(agent, slices=[1.0], include=["C"])
+    shapes = stream.contours(  # numpy scalars and arrays anywhere
+        agent,
+        slices=np.array([1.0], dtype=np.float32),
+        include=np.array(["C"]),
+        tube=np.bool_(True),
+        collision_radius=np.float32(2.0),
+    )
     assert shapes.tube is not None and shapes.tube.C is not None and shapes.tube.K is None
+    assert shapes.collision_radius == 2.0
     assert [s.t for s in shapes.slices] == [1.0]
     stateless = stream.frt((0, 0, 0, 5), control_bounds=BOUNDS, trajectory=[(0.5, 0.0, 0.0)])
     assert stateless.collision is not None and stateless.collision.collision

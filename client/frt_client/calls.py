@@ -172,19 +172,20 @@ def contours(
     collision_radius: float | None = None,
 ) -> Call[AgentContours]:
     times = [float(t) for t in inputs.plain(slices)]
-    parts = list(include)
+    parts = [str(p) for p in include]
+    radius = None if collision_radius is None else float(collision_radius)
     params: dict[str, Any] = {"include": ",".join(parts), "tube": "true" if tube else "false"}
     if times:
         params["slices"] = ",".join(repr(t) for t in times)
-    if collision_radius is not None:
-        params["collision_radius"] = repr(float(collision_radius))
+    if radius is not None:
+        params["collision_radius"] = repr(radius)
     message = inputs.without_none(
         {
             "agent_id": agent_id,
             "slices": times,
             "include": parts,
-            "tube": tube,
-            "collision_radius": collision_radius,
+            "tube": bool(tube),
+            "collision_radius": radius,
         }
     )
     return Call(

@@ -54,5 +54,4 @@ def outcome(call: Call[T], answer: dict[str, Any]) -> T:
     error = answer.get("error")
     error = error if isinstance(error, dict) else {"detail": str(error)}
     status = error.get("status")
-    return_status = status if isinstance(status, int) else 500
-    raise from_status(return_status, error)
+    raise from_status(status if isinstance(status, int) else 500, error)

@@ -51,7 +51,7 @@ def plain(value: Any) -> Any:
     return value
 
 
-class Part(BaseModel):
+class RequestPart(BaseModel):
     """Base of the request parts: no unknown keys, numpy arrays accepted."""
 
     model_config = ConfigDict(extra="forbid")
@@ -62,7 +62,7 @@ class Part(BaseModel):
         return plain(value)
 
 
-class HumanState(Part):
+class HumanState(RequestPart):
     """The human's state in the world frame: metres, radians from +x (CCW), m/s."""
 
     x: float
@@ -71,14 +71,14 @@ class HumanState(Part):
     speed: float
 
 
-class ObservedAction(Part):
+class ObservedAction(RequestPart):
     """The action the human took since the previous observation: rad/s and m/s²."""
 
     steering_rate: float
     acceleration: float
 
 
-class Prediction(Part):
+class Prediction(RequestPart):
     """A predictor's Gaussian over the controls, one step of ``dt`` seconds per row.
 
     ``mean`` is ``(S, 2)`` (steering rate, acceleration); ``cov`` is ``(S, 2, 2)``.
@@ -89,7 +89,7 @@ class Prediction(Part):
     cov: list[list[list[float]]]
 
 
-class AgentConfig(Part):
+class AgentConfig(RequestPart):
     """Per-agent settings; omitted fields keep the agent's (or the server's) values."""
 
     beta_low: float | None = None
@@ -99,7 +99,7 @@ class AgentConfig(Part):
     bounds_fit: BoundsFit | None = None
 
 
-class TrajectoryPoint(Part):
+class TrajectoryPoint(RequestPart):
     """A robot position at time ``t`` (seconds, on the observations' clock)."""
 
     t: float
@@ -107,7 +107,7 @@ class TrajectoryPoint(Part):
     y: float
 
 
-def _model(cls: type[Part], value: Any, name: str, fields: Sequence[str]) -> dict[str, Any]:
+def _model(cls: type[RequestPart], value: Any, name: str, fields: Sequence[str]) -> dict[str, Any]:
     """``value`` (a model, mapping or sequence in ``fields`` order) validated as ``cls``, dumped."""
     if isinstance(value, cls):
         return value.model_dump(mode="json", exclude_none=True)

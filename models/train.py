@@ -162,7 +162,10 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=None, help="run folder (default runs/<name>)")
     parser.add_argument("--max-minutes", type=float, default=None)
     parser.add_argument("--no-export", action="store_true")
+    parser.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     args = parser.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
     config = TrainConfig.load(args.config)
     out = args.out or Path("runs") / config.name
     train(config, out, args.max_minutes)

@@ -1,0 +1,274 @@
+"""Latency benchmark of the FRT service: ``make bench`` (``python scripts/bench.py``).
+
+Starts the service (uvicorn, one worker) on a free loopback port with the shipped model and drives
+it with httpx from this process. Prints medians and p99 for:
+
+1. a collision check of a 20-point trajectory against one agent, warm (exact set cached);
+2. observation -> new FRT ready (a new prediction and a new beta; timed until GET agent reports
+   the exact set of the new version computed, polling every 0.5 ms);
+3. contours for one agent (tube + 3 slices), on a fresh FRT version each time;
+4. sustained: 50 agents observed at 2 Hz while a planner checks all of them at 10 Hz;
+
+and, side by side in the same run, the naive approach: building the set by evaluating the full
+network on a dense grid for every query (no cache, no distilled projection).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import math
+import os
+import socket
+import subprocess
+import sys
+import time
+from contextlib import contextmanager
+from pathlib import Path
+
+import httpx
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@contextmanager
+def running_service(model: Path):
+    port = free_port()
+    env = dict(os.environ, FRT_MODEL_PATH=str(model), FRT_LOG_REQUESTS="false")
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "uvicorn",
+            "service.app:app",
+            "--port",
+            str(port),
+            "--log-level",
+            "warning",
+        ],
+        cwd=ROOT,
+        env=env,
+    )
+    url = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            try:
+                if httpx.get(f"{url}/readyz", timeout=1).status_code == 200:
+                    break
+            except httpx.HTTPError:
+                pass
+            time.sleep(0.2)
+        else:
+            raise RuntimeError("service did not become ready")
+        yield url
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+
+
+def prediction(rng: np.random.Generator, steps: int = 6) -> dict:
+    mean = [[float(rng.normal(0, 0.05)), float(rng.normal(0, 0.3))] for _ in range(steps)]
+    cov = [[[0.01, 0.0], [0.0, 0.25]] for _ in range(steps)]
+    return {"dt": 0.5, "mean": mean, "cov": cov}
+
+
+def observation(t: float, rng: np.random.Generator, first: bool, x: float = 0.0) -> dict:
+    body = {
+        "timestamp": t,
+        "state": {"x": x, "y": 0.0, "heading": 0.0, "speed": float(rng.uniform(5, 12))},
+        "prediction": prediction(rng),
+        "observed_action": None
+        if first
+        else {"steering_rate": float(rng.normal(0, 0.1)), "acceleration": float(rng.normal(0, 1))},
+    }
+    return body
+
+
+def trajectory(t0: float, n: int = 20) -> list[dict]:
+    return [{"t": t0 + 0.1 * i, "x": 40.0 - 2.0 * i, "y": -3.0} for i in range(n)]
+
+
+def stats(samples_s: list[float]) -> dict[str, float]:
+    a = np.array(samples_s) * 1e3
+    return {
+        "n": len(a),
+        "p50_ms": float(np.percentile(a, 50)),
+        "p99_ms": float(np.percentile(a, 99)),
+        "max_ms": float(a.max()),
+    }
+
+
+def bench_collision(client: httpx.Client, n: int) -> dict:
+    rng = np.random.default_rng(0)
+    client.post(
+        "/v1/agents/bench-cc/observations", json=observation(0.0, rng, True)
+    ).raise_for_status()
+    body = {"trajectory": trajectory(0.1), "mode": "time_indexed", "deadline_ms": 1000}
+    client.post("/v1/agents/bench-cc/collision-check", json=body).raise_for_status()  # warm
+    body["deadline_ms"] = 5
+    times, conservative = [], 0
+    for _ in range(n):
+        t0 = time.perf_counter()
+        r = client.post("/v1/agents/bench-cc/collision-check", json=body)
+        times.append(time.perf_counter() - t0)
+        conservative += r.json()["conservative"]
+    return {**stats(times), "conservative": conservative}
+
+
+def bench_observe_to_ready(client: httpx.Client, n: int) -> dict:
+    rng = np.random.default_rng(1)
+    times = []
+    client.post("/v1/agents/bench-obs/observations", json=observation(0.0, rng, True))
+    for i in range(1, n + 1):
+        t0 = time.perf_counter()
+        r = client.post("/v1/agents/bench-obs/observations", json=observation(float(i), rng, False))
+        r.raise_for_status()
+        version = r.json()["frt_version"]
+        while True:  # poll until the exact set of this version is computed
+            agent = client.get("/v1/agents/bench-obs").json()
+            if agent["frt_ready"] and agent["frt_version"] == version:
+                break
+            time.sleep(0.0005)
+        times.append(time.perf_counter() - t0)
+    return stats(times)
+
+
+def bench_contours(client: httpx.Client, n: int) -> dict:
+    rng = np.random.default_rng(2)
+    times = []
+    client.post("/v1/agents/bench-frt/observations", json=observation(0.0, rng, True))
+    for i in range(1, n + 1):
+        client.post("/v1/agents/bench-frt/observations", json=observation(float(i), rng, False))
+        t0 = time.perf_counter()
+        r = client.get(
+            "/v1/agents/bench-frt/frt", params={"slices": "1.0,2.0,3.0", "include": "K,C"}
+        )
+        times.append(time.perf_counter() - t0)
+        r.raise_for_status()
+    return stats(times)
+
+
+async def bench_sustained(url: str, agents: int, seconds: float, headers: dict) -> dict:
+    rng = np.random.default_rng(3)
+    check_times: list[float] = []
+    obs_times: list[float] = []
+    misses = conservative = errors = 0
+    deadline_ms = 20.0
+    start = time.monotonic()
+    async with httpx.AsyncClient(base_url=url, timeout=5, headers=headers) as client:
+        for a in range(agents):
+            await client.post(
+                f"/v1/agents/s{a}/observations", json=observation(0.0, rng, True, 10.0 * a)
+            )
+
+        async def observer(a: int) -> None:
+            nonlocal errors
+            k = 1
+            await asyncio.sleep(rng.uniform(0, 0.5))
+            while time.monotonic() - start < seconds:
+                t0 = time.perf_counter()
+                r = await client.post(
+                    f"/v1/agents/s{a}/observations",
+                    json=observation(float(k), rng, False, 10.0 * a),
+                )
+                obs_times.append(time.perf_counter() - t0)
+                errors += r.status_code != 200
+                k += 1
+                await asyncio.sleep(0.5)
+
+        async def planner() -> None:
+            nonlocal misses, conservative, errors
+            while time.monotonic() - start < seconds:
+                t0 = time.perf_counter()
+                body = {"trajectory": trajectory(1.0), "mode": "tube", "deadline_ms": deadline_ms}
+                r = await client.post("/v1/collision-check", json=body)
+                dt = time.perf_counter() - t0
+                check_times.append(dt)
+                errors += r.status_code != 200
+                if r.status_code == 200:
+                    conservative += r.json()["conservative"]
+                misses += dt * 1e3 > deadline_ms
+                await asyncio.sleep(max(0.0, 0.1 - dt))
+
+        await asyncio.gather(planner(), *(observer(a) for a in range(agents)))
+    return {
+        "agents": agents,
+        "seconds": seconds,
+        "check_all": stats(check_times),
+        "observe": stats(obs_times),
+        "deadline_ms": deadline_ms,
+        "deadline_misses_end_to_end": misses,
+        "conservative_answers": conservative,
+        "errors": errors,
+    }
+
+
+def bench_naive(model: Path, n: int) -> dict:
+    """The naive approach: per query, the set from the full network on a dense grid, no cache."""
+    from service.engine import FRTEngine, Pose
+    from service.model_runtime import ValueModel
+
+    vm = ValueModel.load(model, threads=1)
+    naive = FRTEngine(vm, projection=False)
+    bounds = np.array([-0.15, -1.5, -0.15, -1.5, 0.15, 1.5, 0.15, 1.5])
+    points = np.array([[p["x"], p["y"]] for p in trajectory(0.1)])
+    times = []
+    for _ in range(n):
+        t0 = time.perf_counter()
+        frt = naive.exact(Pose(0.0, 0.0, 0.0), 8.0, bounds)
+        frt.clearance(points, np.linspace(0.1, 2.0, len(points)))
+        times.append(time.perf_counter() - t0)
+    return stats(times)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--model", type=Path, default=ROOT / "models" / "frt_unicycle.onnx")
+    parser.add_argument("--checks", type=int, default=500)
+    parser.add_argument("--observations", type=int, default=60)
+    parser.add_argument("--sustained-seconds", type=float, default=20.0)
+    parser.add_argument("--naive", type=int, default=10)
+    parser.add_argument("--out", type=Path, default=ROOT / "results" / "bench.json")
+    args = parser.parse_args()
+    results: dict = {}
+    with running_service(args.model.resolve()) as url:
+        with httpx.Client(base_url=url, timeout=10) as client:
+            results["collision_check_20pt_warm"] = bench_collision(client, args.checks)
+            results["observation_to_frt_ready"] = bench_observe_to_ready(client, args.observations)
+            results["contours_tube_plus_3_slices"] = bench_contours(client, args.observations)
+        results["sustained_50_agents"] = asyncio.run(
+            bench_sustained(url, 50, args.sustained_seconds, {})
+        )
+    results["naive_dense_grid_per_query"] = bench_naive(args.model.resolve(), args.naive)
+    warm = results["collision_check_20pt_warm"]["p50_ms"]
+    naive = results["naive_dense_grid_per_query"]["p50_ms"]
+    results["naive_over_engine_p50_ratio"] = naive / warm if warm > 0 else math.inf
+    width = max(len(k) for k in results)
+    print(f"{'measure':{width}s}  {'p50 [ms]':>9s} {'p99 [ms]':>9s}")
+    for name, r in results.items():
+        if isinstance(r, dict) and "p50_ms" in r:
+            print(f"{name:{width}s}  {r['p50_ms']:9.2f} {r['p99_ms']:9.2f}")
+    s = results["sustained_50_agents"]
+    print(
+        f"{'sustained: check all 50 @10 Hz':{width}s}  {s['check_all']['p50_ms']:9.2f} "
+        f"{s['check_all']['p99_ms']:9.2f}  misses={s['deadline_misses_end_to_end']} "
+        f"conservative={s['conservative_answers']} errors={s['errors']}"
+    )
+    print(f"naive / engine (p50, same run): {results['naive_over_engine_p50_ratio']:.0f}x")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(results, indent=2))
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()

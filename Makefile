@@ -34,8 +34,14 @@ format: $(STAMP)
 test: lint
 	$(BIN)/python -m pytest -q
 
+# Reproduces the shipped model: train, export (contract graph + float32 twin), calibrate delta,
+# distil the (x, y) projection network, then measure the accuracy written into the card.
 train: $(STAMP)
-	$(BIN)/python -m models.train --config models/configs/full.json
+	$(BIN)/python -m models.train --config models/configs/full.json --out runs/frt_unicycle --no-export
+	$(BIN)/python -m models.export --run runs/frt_unicycle --out models
+	$(BIN)/python -m models.evaluate --model $(MODEL) --calibrate --calibrate-only --write-card
+	$(BIN)/python -m models.projection --model $(MODEL)
+	$(MAKE) evaluate-full
 
 train-smoke: $(STAMP)
 	$(BIN)/python -m models.train --config models/configs/smoke.json --out /tmp/frt-smoke
@@ -44,7 +50,9 @@ evaluate: $(STAMP)
 	$(BIN)/python -m models.evaluate --model $(MODEL) --rollouts 16384
 
 evaluate-full: $(STAMP)
-	$(BIN)/python -m models.evaluate --model $(MODEL) --rollouts 262144 --write-card
+	$(BIN)/python -m models.evaluate --model $(MODEL) --rollouts 65536 --write-card \
+		--plot docs/frt_contours.png --json results/model_eval.json
+	$(BIN)/python scripts/plot_training.py runs/frt_unicycle/log.csv --out docs/training_loss.png
 
 bench: $(STAMP)
 	$(BIN)/python scripts/bench.py --model $(MODEL)

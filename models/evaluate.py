@@ -280,6 +280,7 @@ def main() -> None:
     parser.add_argument("--calibration-settings", type=int, default=1000)
     parser.add_argument("--calibration-per-setting", type=int, default=128)
     parser.add_argument("--write-card", action="store_true")
+    parser.add_argument("--calibrate-only", action="store_true", help="calibrate, skip evaluation")
     parser.add_argument("--only", nargs="*", default=None, help="names of settings to evaluate")
     parser.add_argument("--plot", type=Path, default=None)
     parser.add_argument("--json", type=Path, default=None)
@@ -308,6 +309,8 @@ def main() -> None:
             write_card(card, args.model)
             model = ValueModel.load(args.model, threads=2)
         print(json.dumps(calibration, indent=2))
+        if args.calibrate_only:
+            return
     delta = model.card.delta
     engine = FRTEngine(model)
     settings = [s for s in SETTINGS if not args.only or s.name in args.only]

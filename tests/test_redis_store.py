@@ -256,16 +256,17 @@ def test_a_failing_update_writes_nothing(redis_server: RedisServer) -> None:
 
 def test_agents_expire_with_the_ttl_and_updates_refresh_it(redis_server: RedisServer) -> None:
     async def go() -> None:
-        store = make(redis_server, ttl_s=0.4)
+        # Generous margins (TTL 2 s, steps of 1.2 s): a loaded CI machine may oversleep.
+        store = make(redis_server, ttl_s=2.0)
         await store.update("a", put(state("a", 1.0)))
         await store.update("b", put(state("b", 1.0)))
-        await asyncio.sleep(0.25)
+        await asyncio.sleep(1.2)
         await store.update("b", put(state("b", 2.0)))  # refreshes b only
-        await asyncio.sleep(0.25)
+        await asyncio.sleep(1.2)
         assert await store.get("a") is None
         assert await store.get("b") is not None
         assert await store.ids() == ["b"] and await store.count() == 1
-        await asyncio.sleep(0.25)
+        await asyncio.sleep(1.2)
         assert await store.get("b") is None and await store.count() == 0
         await store.close()
 

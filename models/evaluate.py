@@ -152,6 +152,7 @@ def evaluate_setting(
             [shapely.box(b[0], b[2], b[1], b[3]) for b in ob.sweeps_until(t)]
         )
         row["outside_outer_m2"] = float(tube.difference(outer_tube).area)
+        row["outer_bound_iou"] = compare_cells(reference, model_cells(outer_tube, reference))["iou"]
         rows.append(row)
         artefacts[f"reference_{t:g}"] = reference
     return rows, artefacts
@@ -216,17 +217,22 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, float]:
         "worst_iou": min(r["iou"] for r in rows),
         "p95_beyond_m_max": max(r["beyond_p95_m"] for r in rows),
         "p95_beyond_m_mean": float(np.mean([r["beyond_p95_m"] for r in rows])),
+        "mean_iou_outer_bound_alone": float(np.mean([r["outer_bound_iou"] for r in rows])),
     }
 
 
 def print_table(rows: list[dict[str, Any]]) -> None:
-    header = f"{'setting':28s} {'t':>4s} {'recall(states)':>14s} {'recall(cells)':>13s} {'IoU':>6s} {'beyond p95 [m]':>14s}"
+    header = (
+        f"{'setting':28s} {'t':>4s} {'recall(states)':>14s} {'recall(cells)':>13s} {'IoU':>6s} "
+        f"{'beyond p95 [m]':>14s} {'IoU outer bound':>15s}"
+    )
     print(header)
     print("-" * len(header))
     for r in rows:
         print(
             f"{r['setting']:28s} {r['t']:4.1f} {r['recall_states']:14.4f} "
-            f"{r['recall_cells']:13.4f} {r['iou']:6.3f} {r['beyond_p95_m']:14.2f}"
+            f"{r['recall_cells']:13.4f} {r['iou']:6.3f} {r['beyond_p95_m']:14.2f} "
+            f"{r['outer_bound_iou']:15.3f}"
         )
 
 

@@ -53,6 +53,7 @@ evaluate-full: $(STAMP)
 	$(BIN)/python -m models.evaluate --model $(MODEL) --rollouts 65536 --write-card \
 		--plot docs/frt_contours.png --json results/model_eval.json
 	$(BIN)/python scripts/plot_training.py runs/frt_unicycle/log.csv --out docs/training_loss.png
+	$(BIN)/python scripts/model_report.py
 
 bench: $(STAMP)
 	$(BIN)/python scripts/bench.py --model $(MODEL)

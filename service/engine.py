@@ -225,7 +225,7 @@ class FRTEngine:
     def __init__(
         self,
         model: ValueModel,
-        slice_dt: float = 0.1,
+        slice_dt: float | None = None,
         resolution_m: float = 0.25,
         max_nodes: int | None = None,
         heading_samples: int = 3,
@@ -236,8 +236,10 @@ class FRTEngine:
         self.model = model
         self.card = model.card
         self.horizon = self.card.horizon_s
-        self.slice_dt = slice_dt
-        self.n_slices = round(self.horizon / slice_dt) + 1
+        self.use_projection = projection and model.projection is not None
+        # With the distilled projection a node costs one small evaluation: finer slices, less dilation.
+        self.slice_dt = slice_dt or (0.05 if self.use_projection else 0.1)
+        self.n_slices = round(self.horizon / self.slice_dt) + 1
         self.resolution_m = resolution_m
         self._max_nodes = max_nodes
         self.heading_samples = heading_samples
@@ -246,10 +248,9 @@ class FRTEngine:
         self.outer_steps_per_slice = outer_steps_per_slice
         stencil = self.card.raw.get("projection") or {}
         self.level = float(stencil.get("delta", self.card.delta))
-        self.use_projection = projection and model.projection is not None
         if self.use_projection:
             self.level = float(self.card.raw["projection_graph"]["delta"])
-        self.max_nodes = max_nodes or (40000 if self.use_projection else 6000)
+        self.max_nodes = max_nodes or (20000 if self.use_projection else 6000)
         self.radius_m = float(self.card.initial_set.get("radius_m", 0.5))
 
     # ----------------------------------------------------------------- validation
@@ -361,7 +362,12 @@ class FRTEngine:
         return self.model.evaluate(x).reshape(shape).min(axis=(1, 2)), n
 
     def projected_value(
-        self, s: float, px: np.ndarray, py: np.ndarray, v_start: float, bounds: np.ndarray
+        self,
+        s: float | np.ndarray,
+        px: np.ndarray,
+        py: np.ndarray,
+        v_start: float,
+        bounds: np.ndarray,
     ) -> tuple[np.ndarray, int]:
         """W(s, x, y), the distilled minimum over heading and speed (one evaluation per point)."""
         x = np.zeros((len(px), N_INPUTS), dtype=np.float32)
@@ -381,29 +387,35 @@ class FRTEngine:
         regions = [ob.sweep[min(j * k, len(ob.sweep) - 1)] for j in range(self.n_slices)]
         areas = np.array([(r[1] - r[0] + 1) * (r[3] - r[2] + 1) for r in regions])
         resolution = max(self.resolution_m, math.sqrt(areas.sum() / self.max_nodes))
-        slices: list[BaseGeometry] = [Point(0.0, 0.0).buffer(self.radius_m, quad_segs=16)]
-        evaluations = 0
-        for j in range(1, self.n_slices):
-            s = j * self.slice_dt
-            xs, ys = self._grid(regions[j], resolution)
-            gx, gy = np.meshgrid(xs, ys)
-            if self.use_projection:
-                values, n = self.projected_value(s, gx.ravel(), gy.ravel(), v_start, bounds)
-            else:
-                values, n = self.stencil_min(s, gx.ravel(), gy.ravel(), v_start, bounds, ob)
-            values = values.reshape(gx.shape)
-            evaluations += n
-            slices.append(
-                _filled_contour(xs, ys, values, self.level).intersection(_box(regions[j]))
+        grids = [self._grid(regions[j], resolution) for j in range(1, self.n_slices)]
+        meshes = [np.meshgrid(xs, ys) for xs, ys in grids]
+        times = [j * self.slice_dt for j in range(1, self.n_slices)]
+        if self.use_projection:  # one runtime call for every slice
+            px = np.concatenate([gx.ravel() for gx, _ in meshes])
+            py = np.concatenate([gy.ravel() for _, gy in meshes])
+            t = np.concatenate(
+                [np.full(gx.size, s) for (gx, _), s in zip(meshes, times, strict=True)]
             )
+            flat, evaluations = self.projected_value(t, px, py, v_start, bounds)
+            split = np.split(flat, np.cumsum([gx.size for gx, _ in meshes])[:-1])
+        else:
+            split, evaluations = [], 0
+            for (gx, gy), s in zip(meshes, times, strict=True):
+                values, n = self.stencil_min(s, gx.ravel(), gy.ravel(), v_start, bounds, ob)
+                split.append(values)
+                evaluations += n
+        slices: list[BaseGeometry] = [Point(0.0, 0.0).buffer(self.radius_m, quad_segs=16)]
+        for j, ((xs, ys), (gx, _), values) in enumerate(zip(grids, meshes, split, strict=True), 1):
+            k_set = _filled_contour(xs, ys, values.reshape(gx.shape), self.level)
+            # Half a grid cell outward: a thin part of the set between nodes is not lost.
+            k_set = k_set.buffer(resolution / 2, quad_segs=4) if not k_set.is_empty else k_set
+            slices.append(k_set.intersection(_box(regions[j])))
         tubes: list[BaseGeometry] = []
         running: BaseGeometry = shapely.Polygon()
         for j, k_set in enumerate(slices):
             t_idx = int(np.argmin(np.abs(ob.times - j * self.slice_dt)))
             reach = float(ob.speed[min(t_idx + 1, len(ob.speed) - 1), 1]) * self.slice_dt / 2
-            grown = (
-                k_set.buffer(reach + resolution / 2, quad_segs=4) if not k_set.is_empty else k_set
-            )
+            grown = k_set.buffer(reach, quad_segs=4) if not k_set.is_empty else k_set
             running = shapely.union(running, grown.intersection(boxes[j]))
             tubes.append(running)
         return FRTSet(

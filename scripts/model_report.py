@@ -1,0 +1,78 @@
+"""Render the model card's measured figures as Markdown: ``python scripts/model_report.py``.
+
+Writes docs/model_accuracy.md from models/frt_unicycle.json, so the numbers in the docs are the
+ones `make evaluate-full` measured and wrote into the card.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def render(card: dict) -> str:
+    acc = card["accuracy"]
+    cal = card["calibration"]
+    proj = card.get("projection_graph", {})
+    s = acc["summary"]
+    lines = [
+        "# Accuracy of the shipped value network (generated from the model card)",
+        "",
+        f"Model `{card['name']}` (`{card['file']}`, sha256 `{card['sha256'][:16]}…`), semantics "
+        f"`{card['semantics']}`, horizon {card['horizon_s']} s. Measured by `make evaluate-full`: "
+        f"{acc['rollouts_per_setting']} rollouts per setting (RK4, dt = {acc['dt_s']} s), "
+        f"cells of {acc['cell_m']} m, seed {acc['seed']}.",
+        "",
+        "Columns: share of sampled reachable states with V <= delta; share of rollout (x, y) cells "
+        "inside the service's tube K(t); IoU of K(t) with the rollout cells; 95th percentile of how far "
+        "K(t) reaches beyond the rollout cells; IoU of the interval outer bound alone (what the "
+        "network adds over the cheap bound).",
+        "",
+        "| setting | t [s] | recall (states) | recall (cells) | IoU | beyond p95 [m] | IoU outer bound |",
+        "| --- | ---: | ---: | ---: | ---: | ---: | ---: |",
+    ]
+    for r in acc["rows"]:
+        lines.append(
+            f"| {r['setting']} | {r['t']:.0f} | {r['recall_states']:.4f} | {r['recall_cells']:.4f} "
+            f"| {r['iou']:.3f} | {r['beyond_p95_m']:.2f} | {r['outer_bound_iou']:.3f} |"
+        )
+    lines += [
+        "",
+        "| summary | value |",
+        "| --- | ---: |",
+        f"| min recall (states) | {s['min_recall_states']:.4f} |",
+        f"| min recall (cells) | {s['min_recall_cells']:.4f} |",
+        f"| mean IoU | {s['mean_iou']:.3f} |",
+        f"| worst IoU | {s['worst_iou']:.3f} |",
+        f"| mean IoU of the outer bound alone | {s['mean_iou_outer_bound_alone']:.3f} |",
+        f"| beyond p95, worst setting [m] | {s['p95_beyond_m_max']:.2f} |",
+        f"| beyond p95, mean [m] | {s['p95_beyond_m_mean']:.2f} |",
+        "",
+        "## Calibration",
+        "",
+        f"- delta = {cal['delta']:.4f} ({cal['method']}; {cal['samples']} reachable states over "
+        f"{cal['parameter_settings']} random parameter settings).",
+        f"- Guarantee: {cal['guarantee']} (confidence {cal['confidence']:.6f}).",
+    ]
+    if proj:
+        lines.append(
+            f"- Projection network level delta_W = {proj['delta']:.4f}, calibrated the same way on "
+            f"{proj['calibration_samples']} reachable (s, x, y) of the true dynamics."
+        )
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--card", type=Path, default=ROOT / "models" / "frt_unicycle.json")
+    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "model_accuracy.md")
+    args = parser.parse_args()
+    args.out.write_text(render(json.loads(args.card.read_text())))
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()

@@ -86,7 +86,8 @@ def cells_of(xy: np.ndarray) -> np.ndarray:
 
 
 def model_cells(geometry: Any, reference: np.ndarray) -> np.ndarray:
-    """Cells (same grid) whose centre lies in ``geometry``; the search box covers both sets."""
+    """Cells (same grid as the rollout cells) that the set touches: a rollout cell is one a rollout
+    touches, so both sides are counted alike. The search box covers both sets."""
     if geometry.is_empty:
         return np.zeros((0, 2), dtype=np.int64)
     x0, y0, x1, y1 = geometry.bounds
@@ -94,9 +95,12 @@ def model_cells(geometry: Any, reference: np.ndarray) -> np.ndarray:
     hi = np.maximum(np.ceil(np.array([x1, y1]) / CELL_M), reference.max(axis=0)).astype(int) + 1
     ix, iy = np.meshgrid(np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1))
     keys = np.stack([ix.ravel(), iy.ravel()], axis=1)
-    centres = (keys + 0.5) * CELL_M
-    inside = shapely.contains_xy(geometry, centres[:, 0], centres[:, 1])
-    return keys[inside]
+    corners = keys * CELL_M
+    cells = shapely.box(
+        corners[:, 0], corners[:, 1], corners[:, 0] + CELL_M, corners[:, 1] + CELL_M
+    )
+    shapely.prepare(geometry)
+    return keys[shapely.intersects(geometry, cells)]
 
 
 def compare_cells(reference: np.ndarray, model: np.ndarray) -> dict[str, float]:

@@ -73,6 +73,11 @@ class OuterBound:
     heading: np.ndarray  # [n + 1, 2]
     speed: np.ndarray  # [n + 1, 2]
 
+    def final_diagonal(self) -> float:
+        """Diagonal of the box at the horizon: the size feature of the level table (models/levels.py)."""
+        x_lo, x_hi, y_lo, y_hi = self.box_at[-1]
+        return float(np.hypot(x_hi - x_lo, y_hi - y_lo))
+
     def slice_index(self, t: float) -> int:
         """Index k of the sub-interval [times[k], times[k+1]] that contains t (clipped)."""
         k = int(np.searchsorted(self.times, t, side="right")) - 1

@@ -8,7 +8,14 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-TORCH_FREE = ["service", "client/frt_client", "models/contract.py", "models/dynamics.py"]
+TORCH_FREE = [
+    "service",
+    "client/frt_client",
+    "models/contract.py",
+    "models/dynamics.py",
+    "models/outer_bound.py",
+    "models/levels.py",
+]
 
 
 def _imports(path: Path) -> set[str]:

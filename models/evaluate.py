@@ -153,7 +153,7 @@ def evaluate_setting(
             **compare_cells(reference, model_cells(tube, reference)),
         }
         outer_tube = shapely.union_all(
-            [shapely.box(b[0], b[2], b[1], b[3]) for b in ob.sweeps_until(t)]
+            [shapely.Polygon(ob.sweep_polygon(k)) for k in range(len(ob.sweeps_until(t)))]
         )
         row["outside_outer_m2"] = float(tube.difference(outer_tube).area)
         row["outer_bound_iou"] = compare_cells(reference, model_cells(outer_tube, reference))["iou"]
@@ -264,8 +264,10 @@ def plot_contours(artefacts: dict[str, dict[str, Any]], path: Path) -> None:
                 if not poly.is_empty:
                     x, y = poly.exterior.xy
                     ax.plot(x, y, color=colour, lw=1.2, label=f"model tube t={t:g}s")
-        box = a["outer"].sweeps_until(HORIZON_S)
-        outer = shapely.union_all([shapely.box(b[0], b[2], b[1], b[3]) for b in box])
+        ob = a["outer"]
+        outer = shapely.union_all(
+            [shapely.Polygon(ob.sweep_polygon(k)) for k in range(len(ob.sweep))]
+        )
         for poly in getattr(outer, "geoms", [outer]):
             x, y = poly.exterior.xy
             ax.plot(x, y, color="grey", lw=0.8, ls="--", label="outer bound")

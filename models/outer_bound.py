@@ -14,7 +14,7 @@ conservative fallback (service/engine.py).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -50,6 +50,29 @@ def _interval_product(
     return products.min(axis=0), products.max(axis=0)
 
 
+SUPPORT_DIRECTIONS = 16
+
+
+def half_plane_polygon(directions: np.ndarray, support: np.ndarray) -> np.ndarray:
+    """Vertices (counter-clockwise) of {p : p . (cos phi_m, sin phi_m) <= support_m for all m}.
+
+    Every pair of boundary lines is intersected and the points that satisfy all constraints are
+    kept, so redundant constraints cannot cut a corner off; the polygon is convex.
+    """
+    normals = np.stack([np.cos(directions), np.sin(directions)], axis=1)
+    i, j = np.triu_indices(len(directions), k=1)
+    a = np.stack([normals[i], normals[j]], axis=1)  # [P, 2, 2]
+    det = np.linalg.det(a)
+    ok = np.abs(det) > 1e-9
+    rhs = np.stack([support[i], support[j]], axis=1)[ok]
+    points = np.linalg.solve(a[ok], rhs[..., None])[..., 0]
+    feasible = np.all(points @ normals.T <= support[None, :] + 1e-7 * (1 + np.abs(support)), axis=1)
+    points = points[feasible]
+    centre = points.mean(axis=0)
+    order = np.argsort(np.arctan2(points[:, 1] - centre[1], points[:, 0] - centre[0]))
+    return points[order]
+
+
 def _stop_rule_integral(v0: float, increments: np.ndarray) -> np.ndarray:
     """v[i+1] = max(v[i] + increments[i], 0), vectorised (Lindley's recursion):
     v[n] = S[n] - min(-v0, min_{k<=n} S[k]) with S the cumulative sum of the increments."""
@@ -72,6 +95,12 @@ class OuterBound:
     radius: np.ndarray  # [n + 1]
     heading: np.ndarray  # [n + 1, 2]
     speed: np.ndarray  # [n + 1, 2]
+    directions: np.ndarray = field(default_factory=lambda: np.zeros(0))  # [M] angles
+    sweep_support: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))  # [n, M]
+
+    def sweep_polygon(self, k: int) -> np.ndarray:
+        """Vertices of a convex polygon containing every position during sweep k (⊆ its box)."""
+        return half_plane_polygon(self.directions, self.sweep_support[k])
 
     def final_diagonal(self) -> float:
         """Diagonal of the box at the horizon: the size feature of the level table (models/levels.py)."""
@@ -139,8 +168,18 @@ def outer_bound(
     y_hi = np.concatenate([[r], r + np.cumsum(vy_hi * h)])
     radius = np.concatenate([[r], r + np.cumsum(sp_hi * h)])
 
+    # Support functions in M directions: h(phi) bounds p . (cos phi, sin phi) by the same interval
+    # arithmetic as the box (which is the special case of the four axis directions).
+    directions = np.arange(SUPPORT_DIRECTIONS) * (2 * math.pi / SUPPORT_DIRECTIONS)
+    _, c_hi = cos_range(th_lo[:, None] - directions[None, :], th_hi[:, None] - directions[None, :])
+    rate = np.where(c_hi >= 0, sp_hi[:, None] * c_hi, sp_lo[:, None] * c_hi)
+    support = np.concatenate([np.full((1, len(directions)), r), r + np.cumsum(rate * h, axis=0)])
+
     idx = np.arange(0, steps + 1) * substeps
     box_at = np.stack([x_lo[idx], x_hi[idx], y_lo[idx], y_hi[idx]], axis=1)
+    sweep_support = np.maximum(
+        support[:-1].reshape(steps, substeps, -1).max(axis=1), support[idx[1:]]
+    )
 
     def window(values: np.ndarray, reduce: np.ufunc) -> np.ndarray:
         inner = reduce.reduce(values[:-1].reshape(steps, substeps), axis=1)
@@ -162,4 +201,6 @@ def outer_bound(
         radius=radius[idx],
         heading=np.stack([theta_lo[idx], theta_hi[idx]], axis=1),
         speed=np.stack([v_lo[idx], v_hi[idx]], axis=1),
+        directions=directions,
+        sweep_support=sweep_support,
     )

@@ -208,6 +208,11 @@ def _box(bounds: np.ndarray) -> BaseGeometry:
     return box(x_lo, y_lo, x_hi, y_hi)
 
 
+def _sweep_polygon(ob: OuterBound, k: int) -> BaseGeometry:
+    """The support-function polygon of sweep k (inside its box, so inside the conservative set)."""
+    return shapely.Polygon(ob.sweep_polygon(k))
+
+
 def _filled_contour(xs: np.ndarray, ys: np.ndarray, z: np.ndarray, level: float) -> BaseGeometry:
     """The region {z <= level} of a node grid as a shapely geometry."""
     generator = contourpy.contour_generator(xs, ys, z, fill_type="OuterOffset")
@@ -291,15 +296,14 @@ class FRTEngine:
             v_start, np.asarray(bounds, float), self.horizon, self.outer_steps, 8, initial
         )
 
-    def _interval_boxes(self, ob: OuterBound) -> list[BaseGeometry]:
-        """Per slice j, boxes whose union contains every position during [s_j - dt/2, s_j + dt/2]."""
+    def _interval_regions(self, ob: OuterBound) -> list[BaseGeometry]:
+        """Per slice j, polygons whose union contains every position during [s_j - dt/2, s_j + dt/2]."""
         k = self.outer_steps_per_slice
-        boxes = []
+        regions = []
         for j in range(self.n_slices):
             lo, hi = max(j * k - k // 2, 0), min(j * k + (k + 1) // 2, len(ob.sweep))
-            # The union, not the bounding box: the conservative tube is this same union.
-            boxes.append(shapely.union_all([_box(b) for b in ob.sweep[lo:hi]]))
-        return boxes
+            regions.append(shapely.union_all([_sweep_polygon(ob, i) for i in range(lo, hi)]))
+        return regions
 
     def conservative(self, pose: Pose, v_start: float, bounds: np.ndarray) -> FRTSet:
         """The outer bound as a set: contains the exact set, computed in well under a millisecond."""
@@ -390,7 +394,7 @@ class FRTEngine:
         """The model's set {V <= delta}, projected on (x, y), per slice and as tubes."""
         bounds = np.asarray(bounds, dtype=np.float32)
         ob = self.outer(v_start, bounds)
-        boxes = self._interval_boxes(ob)
+        boxes = self._interval_regions(ob)
         k = self.outer_steps_per_slice
         regions = [ob.sweep[min(j * k, len(ob.sweep) - 1)] for j in range(self.n_slices)]
         areas = np.array([(r[1] - r[0] + 1) * (r[3] - r[2] + 1) for r in regions])
@@ -419,7 +423,8 @@ class FRTEngine:
             k_set = _filled_contour(xs, ys, values.reshape(gx.shape), level)
             # Half a grid cell outward: a thin part of the set between nodes is not lost.
             k_set = k_set.buffer(resolution / 2, quad_segs=4) if not k_set.is_empty else k_set
-            slices.append(k_set.intersection(_box(regions[j])))
+            sweep = min(j * self.outer_steps_per_slice, len(ob.sweep) - 1)
+            slices.append(k_set.intersection(_sweep_polygon(ob, sweep)))
         tubes: list[BaseGeometry] = []
         running: BaseGeometry = shapely.Polygon()
         for j, k_set in enumerate(slices):

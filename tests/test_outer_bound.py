@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import shapely
 
 from models.contract import COL, HORIZON_S, N_INPUTS
 from models.eval_settings import SETTINGS
@@ -43,8 +44,23 @@ def test_rollouts_stay_inside_the_outer_bound(seed: int) -> None:
             assert np.all(px >= x_lo - 1e-6) and np.all(px <= x_hi + 1e-6)
             assert np.all(py >= y_lo - 1e-6) and np.all(py <= y_hi + 1e-6)
             assert np.all(np.hypot(px, py) <= ob.radius[k + 1] + 1e-6)
+            polygon = ob.sweep_polygon(k)
+            normals = np.stack([np.cos(ob.directions), np.sin(ob.directions)], axis=1)
+            projections = np.stack([px, py], axis=1) @ normals.T
+            assert np.all(projections <= ob.sweep_support[k] + 1e-6)
+            assert shapely.contains_xy(shapely.Polygon(polygon).buffer(1e-6), px, py).all()
             assert np.all(v >= ob.speed[k : k + 2, 0].min() - 1e-6)
             assert np.all(v <= ob.speed[k : k + 2, 1].max() + 1e-6)
+
+
+def test_polygon_is_inside_the_box_and_tighter_for_a_turn() -> None:
+    bounds = next(s for s in SETTINGS if s.name == "left_turn").bounds()
+    ob = outer_bound(6.0, bounds)
+    for k in (10, 30, 59):
+        polygon = shapely.Polygon(ob.sweep_polygon(k))
+        x_lo, x_hi, y_lo, y_hi = ob.sweep[k]
+        assert shapely.box(x_lo, y_lo, x_hi, y_hi).buffer(1e-6).contains(polygon)
+    assert polygon.area < 0.9 * (x_hi - x_lo) * (y_hi - y_lo)
 
 
 def test_outer_bound_is_not_vacuous_for_a_narrow_setting() -> None:

@@ -38,6 +38,8 @@ test: lint
 # distil the (x, y) projection network, then measure the accuracy written into the card.
 train: $(STAMP)
 	$(BIN)/python -m models.train --config models/configs/full.json --out runs/frt_unicycle --no-export
+	cp runs/frt_unicycle/log.csv models/training_log.csv
+	cp runs/frt_unicycle/train_meta.json models/training_meta.json
 	$(BIN)/python -m models.export --run runs/frt_unicycle --out models
 	$(BIN)/python -m models.evaluate --model $(MODEL) --calibrate --calibrate-only --write-card
 	$(BIN)/python -m models.projection --model $(MODEL)
@@ -52,7 +54,7 @@ evaluate: $(STAMP)
 evaluate-full: $(STAMP)
 	$(BIN)/python -m models.evaluate --model $(MODEL) --rollouts 65536 --write-card \
 		--plot docs/frt_contours.png --json results/model_eval.json
-	$(BIN)/python scripts/plot_training.py runs/frt_unicycle/log.csv --out docs/training_loss.png
+	$(BIN)/python scripts/plot_training.py models/training_log.csv --out docs/training_loss.png
 	$(BIN)/python scripts/model_report.py
 
 bench: $(STAMP)

@@ -102,11 +102,6 @@ class OuterBound:
         """Vertices of a convex polygon containing every position during sweep k (⊆ its box)."""
         return half_plane_polygon(self.directions, self.sweep_support[k])
 
-    def final_diagonal(self) -> float:
-        """Diagonal of the box at the horizon: the size feature of the level table (models/levels.py)."""
-        x_lo, x_hi, y_lo, y_hi = self.box_at[-1]
-        return float(np.hypot(x_hi - x_lo, y_hi - y_lo))
-
     def slice_index(self, t: float) -> int:
         """Index k of the sub-interval [times[k], times[k+1]] that contains t (clipped)."""
         k = int(np.searchsorted(self.times, t, side="right")) - 1

@@ -33,11 +33,10 @@ from shapely.geometry.base import BaseGeometry
 
 from models.contract import BOUND_COLUMNS, COL, N_INPUTS
 from models.dynamics import wrap_angle
-from models.levels import LevelTable
 from models.outer_bound import OuterBound, outer_bound
 from service.model_runtime import ValueModel
 
-#: Slice spacing when the distilled projection network is present (its levels are calibrated at it).
+#: Slice spacing when the distilled projection network is present (its level is calibrated at it).
 PROJECTION_SLICE_DT = 0.05
 
 
@@ -257,12 +256,8 @@ class FRTEngine:
         self.outer_steps_per_slice = outer_steps_per_slice
         stencil = self.card.raw.get("projection") or {}
         self.level = float(stencil.get("delta", self.card.delta))
-        self.levels: LevelTable | None = None
         if self.use_projection:
-            listed = self.card.raw["projection_graph"]
-            self.level = float(listed["delta"])
-            if "levels" in listed:
-                self.levels = LevelTable.from_dict(listed["levels"])
+            self.level = float(self.card.raw["projection_graph"]["delta"])
         self.max_nodes = max_nodes or (20000 if self.use_projection else 6000)
         self.radius_m = float(self.card.initial_set.get("radius_m", 0.5))
 
@@ -417,10 +412,8 @@ class FRTEngine:
                 split.append(values)
                 evaluations += n
         slices: list[BaseGeometry] = [Point(0.0, 0.0).buffer(self.radius_m, quad_segs=16)]
-        size = ob.final_diagonal()
         for j, ((xs, ys), (gx, _), values) in enumerate(zip(grids, meshes, split, strict=True), 1):
-            level = self.levels.level(j * self.slice_dt, size) if self.levels else self.level
-            k_set = _filled_contour(xs, ys, values.reshape(gx.shape), level)
+            k_set = _filled_contour(xs, ys, values.reshape(gx.shape), self.level)
             # Half a grid cell outward: a thin part of the set between nodes is not lost.
             k_set = k_set.buffer(resolution / 2, quad_segs=4) if not k_set.is_empty else k_set
             sweep = min(j * self.outer_steps_per_slice, len(ob.sweep) - 1)

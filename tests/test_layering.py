@@ -14,7 +14,6 @@ TORCH_FREE = [
     "models/contract.py",
     "models/dynamics.py",
     "models/outer_bound.py",
-    "models/levels.py",
 ]
 
 

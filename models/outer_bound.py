@@ -53,24 +53,33 @@ def _interval_product(
 SUPPORT_DIRECTIONS = 16
 
 
-def half_plane_polygon(directions: np.ndarray, support: np.ndarray) -> np.ndarray:
-    """Vertices (counter-clockwise) of {p : p . (cos phi_m, sin phi_m) <= support_m for all m}.
+def half_plane_polygons(directions: np.ndarray, supports: np.ndarray) -> list[np.ndarray]:
+    """Vertices (counter-clockwise) of {p : p . (cos phi_m, sin phi_m) <= support[k, m] for all m},
+    for every row k of ``supports`` [K, M] at once.
 
     Every pair of boundary lines is intersected and the points that satisfy all constraints are
-    kept, so redundant constraints cannot cut a corner off; the polygon is convex.
+    kept, so redundant constraints cannot cut a corner off; each polygon is convex.
     """
     normals = np.stack([np.cos(directions), np.sin(directions)], axis=1)
     i, j = np.triu_indices(len(directions), k=1)
     a = np.stack([normals[i], normals[j]], axis=1)  # [P, 2, 2]
-    det = np.linalg.det(a)
-    ok = np.abs(det) > 1e-9
-    rhs = np.stack([support[i], support[j]], axis=1)[ok]
-    points = np.linalg.solve(a[ok], rhs[..., None])[..., 0]
-    feasible = np.all(points @ normals.T <= support[None, :] + 1e-7 * (1 + np.abs(support)), axis=1)
-    points = points[feasible]
-    centre = points.mean(axis=0)
-    order = np.argsort(np.arctan2(points[:, 1] - centre[1], points[:, 0] - centre[0]))
-    return points[order]
+    ok = np.abs(np.linalg.det(a)) > 1e-9
+    inverse = np.linalg.inv(a[ok])  # [P', 2, 2]
+    rhs = np.stack([supports[:, i[ok]], supports[:, j[ok]]], axis=2)  # [K, P', 2]
+    points = np.einsum("pab,kpb->kpa", inverse, rhs)  # [K, P', 2]
+    slack = 1e-7 * (1 + np.abs(supports))[:, None, :]
+    feasible = np.all(points @ normals.T <= supports[:, None, :] + slack, axis=2)
+    polygons = []
+    for k in range(len(supports)):
+        pts = points[k][feasible[k]]
+        centre = pts.mean(axis=0)
+        polygons.append(pts[np.argsort(np.arctan2(pts[:, 1] - centre[1], pts[:, 0] - centre[0]))])
+    return polygons
+
+
+def half_plane_polygon(directions: np.ndarray, support: np.ndarray) -> np.ndarray:
+    """The polygon of one support vector (see half_plane_polygons)."""
+    return half_plane_polygons(directions, support[None, :])[0]
 
 
 def _stop_rule_integral(v0: float, increments: np.ndarray) -> np.ndarray:
@@ -101,6 +110,10 @@ class OuterBound:
     def sweep_polygon(self, k: int) -> np.ndarray:
         """Vertices of a convex polygon containing every position during sweep k (⊆ its box)."""
         return half_plane_polygon(self.directions, self.sweep_support[k])
+
+    def sweep_polygons(self) -> list[np.ndarray]:
+        """sweep_polygon(k) for every sweep, computed together."""
+        return half_plane_polygons(self.directions, self.sweep_support)
 
     def slice_index(self, t: float) -> int:
         """Index k of the sub-interval [times[k], times[k+1]] that contains t (clipped)."""

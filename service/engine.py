@@ -207,11 +207,6 @@ def _box(bounds: np.ndarray) -> BaseGeometry:
     return box(x_lo, y_lo, x_hi, y_hi)
 
 
-def _sweep_polygon(ob: OuterBound, k: int) -> BaseGeometry:
-    """The support-function polygon of sweep k (inside its box, so inside the conservative set)."""
-    return shapely.Polygon(ob.sweep_polygon(k))
-
-
 def _filled_contour(xs: np.ndarray, ys: np.ndarray, z: np.ndarray, level: float) -> BaseGeometry:
     """The region {z <= level} of a node grid as a shapely geometry."""
     generator = contourpy.contour_generator(xs, ys, z, fill_type="OuterOffset")
@@ -258,7 +253,7 @@ class FRTEngine:
         self.level = float(stencil.get("delta", self.card.delta))
         if self.use_projection:
             self.level = float(self.card.raw["projection_graph"]["delta"])
-        self.max_nodes = max_nodes or (20000 if self.use_projection else 6000)
+        self.max_nodes = max_nodes or (12000 if self.use_projection else 6000)
         self.radius_m = float(self.card.initial_set.get("radius_m", 0.5))
 
     # ----------------------------------------------------------------- validation
@@ -291,13 +286,13 @@ class FRTEngine:
             v_start, np.asarray(bounds, float), self.horizon, self.outer_steps, 8, initial
         )
 
-    def _interval_regions(self, ob: OuterBound) -> list[BaseGeometry]:
-        """Per slice j, polygons whose union contains every position during [s_j - dt/2, s_j + dt/2]."""
+    def _interval_regions(self, polygons: list[BaseGeometry]) -> list[BaseGeometry]:
+        """Per slice j, the union of the sweep polygons covering [s_j - dt/2, s_j + dt/2]."""
         k = self.outer_steps_per_slice
         regions = []
         for j in range(self.n_slices):
-            lo, hi = max(j * k - k // 2, 0), min(j * k + (k + 1) // 2, len(ob.sweep))
-            regions.append(shapely.union_all([_sweep_polygon(ob, i) for i in range(lo, hi)]))
+            lo, hi = max(j * k - k // 2, 0), min(j * k + (k + 1) // 2, len(polygons))
+            regions.append(shapely.union_all(polygons[lo:hi]))
         return regions
 
     def conservative(self, pose: Pose, v_start: float, bounds: np.ndarray) -> FRTSet:
@@ -389,7 +384,8 @@ class FRTEngine:
         """The model's set {V <= delta}, projected on (x, y), per slice and as tubes."""
         bounds = np.asarray(bounds, dtype=np.float32)
         ob = self.outer(v_start, bounds)
-        boxes = self._interval_regions(ob)
+        polygons = [shapely.Polygon(p) for p in ob.sweep_polygons()]
+        boxes = self._interval_regions(polygons)
         k = self.outer_steps_per_slice
         regions = [ob.sweep[min(j * k, len(ob.sweep) - 1)] for j in range(self.n_slices)]
         areas = np.array([(r[1] - r[0] + 1) * (r[3] - r[2] + 1) for r in regions])
@@ -417,7 +413,7 @@ class FRTEngine:
             # Half a grid cell outward: a thin part of the set between nodes is not lost.
             k_set = k_set.buffer(resolution / 2, quad_segs=4) if not k_set.is_empty else k_set
             sweep = min(j * self.outer_steps_per_slice, len(ob.sweep) - 1)
-            slices.append(k_set.intersection(_sweep_polygon(ob, sweep)))
+            slices.append(k_set.intersection(polygons[sweep]))
         tubes: list[BaseGeometry] = []
         running: BaseGeometry = shapely.Polygon()
         for j, k_set in enumerate(slices):

@@ -23,7 +23,7 @@ from matplotlib.path import Path as MplPath
 
 from experiments.planner import HORIZON_S
 from experiments.run_scenarios import ScenarioRun
-from experiments.scenes import CAR_LENGTH_M, Scene, footprint
+from experiments.scenes import CAR_LENGTH_M, LANE_M, Scene, footprint, footprints_overlap
 from experiments.sweeps import BetaTrace, GammaFRT
 
 WITH = "#00a6c8"  # cyan: with confidence (as in the paper)
@@ -247,17 +247,44 @@ def figure_speeds(
             if run.collision_time_s is not None:
                 k = int(min(run.collision_time_s / 0.02, len(t) - 1))
                 ax.plot([run.collision_time_s], [pos[k] - sc.stop_line_x], "x", color="black", ms=9)
+        inside = _in_ego_lane(sc)
+        for k, (t0, t1) in enumerate(inside):
+            ax.axvspan(
+                t0, t1, color=HUMAN, alpha=0.12, label="human in the ego's lane" if k == 0 else None
+            )
         ax.axhline(0.0, color="grey", lw=0.8)
         ax.set_ylim(-80, 30)
         ax.set_xlabel("time (s)")
         ax.set_ylabel("ego front past its stop line (m)")
-        ax.set_title(f"{sc.title}: ego (dot: detection, x: collision)")
+        ax.set_title(f"{sc.title}: the ego's front (dot: detection, x: collision)")
         ax.legend(fontsize=8)
         ax.grid(alpha=0.3)
     fig.tight_layout()
     fig.savefig(out, dpi=DPI)
     plt.close(fig)
     return out
+
+
+def _in_ego_lane(sc: Scene, dt: float = 0.05) -> list[tuple[float, float]]:
+    """Time intervals during which the human's footprint overlaps the ego's lane."""
+    human = sc.human_trajectory()
+    half = LANE_M / 2
+    lane = np.array([[-500.0, sc.ego_y - half], [500.0, sc.ego_y - half],
+                     [500.0, sc.ego_y + half], [-500.0, sc.ego_y + half]])  # fmt: skip
+    spans: list[tuple[float, float]] = []
+    start = None
+    times = np.arange(0.0, sc.duration_s + 1e-9, dt)
+    for t in times:
+        x, y, heading, _ = human.state_at(float(t))
+        inside = footprints_overlap(footprint(x, y, heading), lane)
+        if inside and start is None:
+            start = float(t)
+        if not inside and start is not None:
+            spans.append((start, float(t)))
+            start = None
+    if start is not None:
+        spans.append((start, float(times[-1])))
+    return spans
 
 
 def figure_av2(

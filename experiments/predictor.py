@@ -16,9 +16,14 @@ until it "determines the intent of the human".
   has moved ``catch_on_distance_m`` since it was first seen) it predicts that the last observed
   action continues (constant steering rate and acceleration): accurate, but late.
 
-The covariance is diagonal, ``sigma * (1 + growth k)`` at step k: tight enough that the wrong
-mean is confidently wrong (with beta = 1 and gamma = 0.075 the control bounds are the mean
-+- 0.094 sigma), which is what the confidence filter has to detect.
+The covariance is diagonal with standard deviations ``sigma * (1 + growth k)`` at step k
+(defaults: 0.2 rad/s and 0.5 m/s^2 for the first 0.5 s, growing to 11 times that at the last step,
+as a learned predictor is sure about the next half second and unsure about the third). That is
+*confidently* wrong in the paper's sense: the action scored by the filter is several first-step
+standard deviations from the mean, and with beta = 1 and gamma = 0.075 the control bounds are the
+mean +- 0.094 sigma (z_gamma = 0.094), so the FRT without confidence is a thin tube around the
+wrong mean. With beta = beta_low = 0.03 the bounds widen by 1 / sqrt(beta_low) = 5.8 to
++- 0.54 sigma: still not the true action, but a set wide enough to reach the ego's lane.
 """
 
 from __future__ import annotations

@@ -200,9 +200,24 @@ def intersection_lines() -> tuple[Line, ...]:
 
 #: Centre of the inner eastbound lane, the ego's lane in both scenes.
 EGO_LANE_Y = -0.5 * LANE_M
+#: When the ego's front would reach its stop line at 21 m/s (s): the one free choice of timing.
+#: Chosen inside the window where the paper's outcome holds (see :mod:`experiments.timing` and
+#: docs/scenarios.md); the human starts moving at t = 2 s in both scenes.
+UTURN_ARRIVAL_S = 5.5
+STOP_SIGN_ARRIVAL_S = 4.6
 
 
-def uturn_scene(ego_start_x: float = -130.0) -> Scene:
+def start_for_arrival(arrival_s: float, stop_line_x: float = 0.0) -> float:
+    """Ego centre at t = 0 such that its front reaches the stop line at ``arrival_s`` (21 m/s)."""
+    return stop_line_x - EGO_SPEED_MPS * arrival_s - CAR_LENGTH_M / 2
+
+
+def arrival_for_start(ego_start_x: float, stop_line_x: float = 0.0) -> float:
+    """Inverse of :func:`start_for_arrival`."""
+    return (stop_line_x - ego_start_x - CAR_LENGTH_M / 2) / EGO_SPEED_MPS
+
+
+def uturn_scene(ego_start_x: float = start_for_arrival(UTURN_ARRIVAL_S)) -> Scene:
     """Case study 1, "U-turn": a human at rest in the rightmost westbound lane, at its stop line
     across the intersection, slowly turns left on a 5.25 m radius, across the ego's lane, into
     the rightmost eastbound lane.
@@ -225,7 +240,7 @@ def uturn_scene(ego_start_x: float = -130.0) -> Scene:
     )
 
 
-def stop_sign_scene(ego_start_x: float = -130.0) -> Scene:
+def stop_sign_scene(ego_start_x: float = start_for_arrival(STOP_SIGN_ARRIVAL_S)) -> Scene:
     """Case study 2, "Running a Stop Sign": the ego has the right of way; the human, at rest at
     its stop line in the inner northbound lane, beside and ahead of other stopped cars, pulls out
     slowly across the intersection.

@@ -16,17 +16,7 @@ from typing import Any
 import numpy as np
 
 from experiments.run_scenarios import run_scenario
-from experiments.scenes import CAR_LENGTH_M, EGO_SPEED_MPS, Scene, scene
-
-
-def start_for_arrival(arrival_s: float, stop_line_x: float = 0.0) -> float:
-    """Ego centre at t = 0 such that its front reaches the stop line at ``arrival_s`` (21 m/s)."""
-    return stop_line_x - EGO_SPEED_MPS * arrival_s - CAR_LENGTH_M / 2
-
-
-def arrival_for_start(ego_start_x: float, stop_line_x: float = 0.0) -> float:
-    """Inverse of :func:`start_for_arrival`."""
-    return (stop_line_x - ego_start_x - CAR_LENGTH_M / 2) / EGO_SPEED_MPS
+from experiments.scenes import Scene, arrival_for_start, scene, start_for_arrival
 
 
 @dataclass(frozen=True)
@@ -89,3 +79,13 @@ def window(rows: Sequence[TimingRow]) -> tuple[float, float] | None:
 def default_arrivals(centre: float, half_width: float = 1.0, step: float = 0.25) -> np.ndarray:
     """A grid of arrival times around ``centre``."""
     return np.round(np.arange(centre - half_width, centre + half_width + 1e-9, step), 3)
+
+
+__all__ = [
+    "TimingRow",
+    "arrival_for_start",
+    "default_arrivals",
+    "start_for_arrival",
+    "sweep",
+    "window",
+]

@@ -40,7 +40,7 @@ from experiments.predictor import (
     observed_action,
 )
 from experiments.scenes import Scene, Trajectory, footprint, footprints_overlap, scene
-from experiments.server import DEADLINE_MS, wait_exact
+from experiments.server import AT_REST_DEADLINE_MS, DEADLINE_MS, SLOW_SPEED_MPS, wait_exact
 
 BETA_LOW = 0.03
 GAMMA = 0.075
@@ -116,6 +116,10 @@ class ScenarioRun:
     ego_stopped_at_s: float | None
     ego_stop_past_line_m: float | None
     conservative_answers: int
+    #: Checks answered from the conservative set while the human was (nearly) at rest, see
+    #: ``experiments.server.SLOW_SPEED_MPS``; and whether the detection came from one.
+    conservative_at_rest: int = 0
+    detected_on_conservative: bool = False
     steps: list[Step] = field(default_factory=list)
     #: GeoJSON of the tube's K and C after each observation, keyed by its time.
     contours: dict[float, dict[str, Any]] = field(default_factory=dict, repr=False)
@@ -135,6 +139,8 @@ class ScenarioRun:
             "collision_time_s": _round(self.collision_time_s),
             "min_centre_distance_m": round(self.min_centre_distance_m, 2),
             "conservative_answers": self.conservative_answers,
+            "conservative_answers_at_rest": self.conservative_at_rest,
+            "detected_on_conservative_set": self.detected_on_conservative,
             "beta_low": self.beta_low,
             "gamma": self.gamma,
             "epsilon": self.epsilon,
@@ -220,7 +226,9 @@ def run_scenario(
                     observed_action=action,
                     config=config if len(history) == 1 else None,
                 )
-                wait_exact(client, agent_id)
+                exact = history[-1].speed >= SLOW_SPEED_MPS
+                if exact:
+                    wait_exact(client, agent_id)
                 run.steps.append(
                     Step(
                         t=t,
@@ -233,7 +241,7 @@ def run_scenario(
                         ego_speed=ego.speed,
                     )
                 )
-                if keep_contours:
+                if keep_contours and exact:
                     c = client.contours(agent_id, include=("K", "C"), tube=True)
                     run.conservative_answers += int(c.conservative)
                     run.contours[round(t, 3)] = {"K": c.tube.K, "C": c.tube.C}
@@ -243,11 +251,16 @@ def run_scenario(
                     ego.nominal_trajectory(t),
                     mode="tube",
                     collision_radius=COLLISION_RADIUS_M,
-                    deadline_ms=deadline_ms,
+                    deadline_ms=deadline_ms if exact else AT_REST_DEADLINE_MS,
                 )
-                run.conservative_answers += int(check.conservative)
+                if check.conservative:
+                    if exact:
+                        run.conservative_answers += 1
+                    else:
+                        run.conservative_at_rest += 1
                 if check.collision:
                     ego.on_conflict(t)
+                    run.detected_on_conservative = bool(check.conservative)
             for j in range(substeps):
                 tj = t + j * TRUTH_DT_S
                 hit, gap = _truth(ego, human, tj)

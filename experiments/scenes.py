@@ -204,7 +204,7 @@ EGO_LANE_Y = -0.5 * LANE_M
 #: Chosen inside the window where the paper's outcome holds (see :mod:`experiments.timing` and
 #: docs/scenarios.md); the human starts moving at t = 2 s in both scenes.
 UTURN_ARRIVAL_S = 5.5
-STOP_SIGN_ARRIVAL_S = 4.6
+STOP_SIGN_ARRIVAL_S = 4.75
 
 
 def start_for_arrival(arrival_s: float, stop_line_x: float = 0.0) -> float:

@@ -187,7 +187,18 @@ def test_time_indexed_mode_uses_the_tube_up_to_t(http: httpx.Client) -> None:
 
 
 def fallback_then_exact(http: httpx.Client) -> tuple[dict, dict]:
-    """One check before the exact set can be ready (deadline 1 us), one after it is."""
+    """One check before the exact set can be ready (deadline 1 us), one after it is.
+
+    On a quiet machine the fixture model's exact set can be ready before the first check
+    arrives; a few fresh agents are tried before giving up on observing the fallback."""
+    for _ in range(10):
+        fast, exact = _fallback_then_exact(http)
+        if fast["conservative"]:
+            return fast, exact
+    pytest.skip("the exact set was always ready before the first check: no fallback to observe")
+
+
+def _fallback_then_exact(http: httpx.Client) -> tuple[dict, dict]:
     agent = new_agent()
     obs = observation(0.0, x=3.0, y=2.0, heading=-0.4, speed=6.0)
     http.post(f"/v1/agents/{agent}/observations", json=obs)

@@ -337,6 +337,31 @@ def run_av2(
     }
 
 
+def miss_diagnostics(result: dict[str, Any], mode: str = "off") -> dict[str, Any]:
+    """Which prediction errors go with the misses: mean |actual - predicted| control over the
+    next 3 s for observations with less than 80 % of the future in K, and for the others."""
+    tracks = {t.track_id: t for t in result["tracks"]}
+    rows = []
+    for o in result["replays"][mode].observations:
+        t = tracks[o.track_id]
+        i = int(np.argmin(np.abs(t.t - o.t)))
+        err = np.abs(t.future_actions(i) - cvtr_mean(t, i)).mean(axis=0)
+        rows.append((o.in_k < 0.8, float(err[0]), float(err[1])))
+    out: dict[str, Any] = {"mode": mode}
+    for name, flag in (("mostly_outside_K", True), ("mostly_inside_K", False)):
+        sel = [r for r in rows if r[0] == flag]
+        out[name] = {
+            "observations": len(sel),
+            "mean_abs_steering_rate_error_radps": round(float(np.mean([r[1] for r in sel])), 4)
+            if sel
+            else None,
+            "mean_abs_acceleration_error_mps2": round(float(np.mean([r[2] for r in sel])), 4)
+            if sel
+            else None,
+        }
+    return out
+
+
 def results_json(result: dict[str, Any], model: dict[str, Any]) -> dict[str, Any]:
     """The content of ``results/av2.json``."""
     return {
@@ -362,6 +387,7 @@ def results_json(result: dict[str, Any], model: dict[str, Any]) -> dict[str, Any
         },
         "tracks": len(result["tracks"]),
         "summary": {mode: r.summary() for mode, r in result["replays"].items()},
+        "miss_diagnostics": miss_diagnostics(result),
         "observations": {
             mode: [asdict(o) for o in r.observations] for mode, r in result["replays"].items()
         },

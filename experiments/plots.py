@@ -90,6 +90,13 @@ def _obs_index(run: ScenarioRun, t: float) -> int:
     return max(i for i, ti in enumerate(times) if ti <= t + 1e-9)
 
 
+def _where(distance_m: float) -> str:
+    """ "12.3 m before the stop line" or, once past it, "4.5 m past the stop line"."""
+    if distance_m >= 0.0:
+        return f"{distance_m:.1f} m before the stop line"
+    return f"{-distance_m:.1f} m past the stop line"
+
+
 def _ego_centre_at_detection(sc: Scene, run: ScenarioRun) -> float:
     assert run.detection is not None
     return sc.stop_line_x - run.detection.distance_to_stop_line_m - CAR_LENGTH_M / 2
@@ -139,7 +146,7 @@ def figure_detection(
         outcome = "COLLISION" if run.collision else "no collision"
         ax.set_title(
             f"{sc.title}, {what}: detects at t = {t_det:.1f} s (FRT of the observation at "
-            f"t = {t_obs:.1f} s), {d.distance_to_stop_line_m:.1f} m before the stop line;\n"
+            f"t = {t_obs:.1f} s), {_where(d.distance_to_stop_line_m)};\n"
             f"brakes at {d.deceleration_mps2:.1f} m/s² for {d.stop_time_s:.2f} s: {outcome}",
             fontsize=10,
         )

@@ -62,7 +62,12 @@ def timing_table(rows: dict[str, list[timing.TimingRow]], chosen: dict[str, floa
     ]
 
     def cell(collision: bool, d: float | None) -> str:
-        det = "no detection" if d is None else f"detects at {d:.1f} m"
+        if d is None:
+            det = "no detection"
+        elif round(d, 1) >= 0.0:
+            det = f"detects {abs(d):.1f} m before its line"
+        else:
+            det = f"detects {-d:.1f} m past its line"
         return f"{det}, {'**collision**' if collision else 'safe'}"
 
     for name, rs in rows.items():
@@ -89,7 +94,7 @@ def main(argv: list[str] | None = None) -> None:
     out.mkdir(parents=True, exist_ok=True)
     scenes = {name: scene(name) for name in ("uturn", "stop_sign")}
     figures: list[Path] = []
-    with connect(args.url, args.model, out / "service.log") as client:
+    with connect(args.url, args.model) as client:
         card = client.model()
         model = {"name": card.name, "delta": card.delta, "semantics": card.semantics}
         _log(f"service ready, model {card.name}", start)

@@ -358,14 +358,14 @@ def save_runs(runs: dict[str, dict[str, ScenarioRun]], model: dict[str, Any], ou
 
 
 def main(argv: list[str] | None = None) -> None:
-    from experiments.server import DEFAULT_MODEL, connect
+    from experiments.server import DEFAULT_MODEL, ROOT, connect
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--url", help="a running service (default: start one locally)")
     parser.add_argument("--model", type=Path, default=DEFAULT_MODEL)
-    parser.add_argument("--out", type=Path, default=Path("results"))
+    parser.add_argument("--out", type=Path, default=ROOT / "results")
     args = parser.parse_args(argv)
-    with connect(args.url, args.model, args.out / "service.log") as client:
+    with connect(args.url, args.model) as client:
         runs = run_all_scenes(client)
         card = client.model()
         save_runs(runs, {"name": card.name, "delta": card.delta}, args.out)

@@ -12,6 +12,7 @@ import os
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -128,7 +129,7 @@ def connect(
             client.wait_ready(timeout_s=60.0)
             yield client
         return
-    log = log_path or ROOT / "results" / "service.log"
+    log = log_path or Path(tempfile.gettempdir()) / "frt-experiments-service.log"
     with (
         local_server(model, log) as local_url,
         FRTClient(local_url, timeout=CLIENT_TIMEOUT_S) as client,

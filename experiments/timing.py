@@ -76,7 +76,7 @@ def window(rows: Sequence[TimingRow]) -> tuple[float, float] | None:
     return best
 
 
-def default_arrivals(centre: float, half_width: float = 1.0, step: float = 0.5) -> np.ndarray:
+def default_arrivals(centre: float, half_width: float = 1.0, step: float = 0.25) -> np.ndarray:
     """A grid of arrival times around ``centre``."""
     return np.round(np.arange(centre - half_width, centre + half_width + 1e-9, step), 3)
 

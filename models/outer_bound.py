@@ -106,6 +106,12 @@ class OuterBound:
     speed: np.ndarray  # [n + 1, 2]
     directions: np.ndarray = field(default_factory=lambda: np.zeros(0))  # [M] angles
     sweep_support: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))  # [n, M]
+    support_at: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))  # [n + 1, M]
+    sweep_speed_max: np.ndarray = field(default_factory=lambda: np.zeros(0))  # [n]
+
+    def polygons_at(self, rows: np.ndarray | list[int]) -> list[np.ndarray]:
+        """Convex polygons containing every position reachable at exactly ``times[k]``, k in rows."""
+        return half_plane_polygons(self.directions, self.support_at[np.asarray(rows, dtype=int)])
 
     def sweep_polygon(self, k: int) -> np.ndarray:
         """Vertices of a convex polygon containing every position during sweep k (⊆ its box)."""
@@ -188,6 +194,8 @@ def outer_bound(
     sweep_support = np.maximum(
         support[:-1].reshape(steps, substeps, -1).max(axis=1), support[idx[1:]]
     )
+    # The speed bound is piecewise linear between fine nodes: its maximum over a sweep is at a node.
+    sweep_speed_max = np.maximum(v_hi[:-1].reshape(steps, substeps).max(axis=1), v_hi[idx[1:]])
 
     def window(values: np.ndarray, reduce: np.ufunc) -> np.ndarray:
         inner = reduce.reduce(values[:-1].reshape(steps, substeps), axis=1)
@@ -211,4 +219,6 @@ def outer_bound(
         speed=np.stack([v_lo[idx], v_hi[idx]], axis=1),
         directions=directions,
         sweep_support=sweep_support,
+        support_at=support[idx],
+        sweep_speed_max=sweep_speed_max,
     )

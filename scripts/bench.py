@@ -8,6 +8,7 @@ it with httpx from this process. Prints medians and p99 for:
    the exact set of the new version computed, polling every 0.5 ms);
 3. contours for one agent (tube + 3 slices), on a fresh FRT version each time;
 4. sustained: 50 agents observed at 2 Hz while a planner checks all of them at 10 Hz;
+5. the exact set alone, in-process, for a moving and for a parked car;
 
 and, side by side in the same run, the naive approach: building the set by evaluating the full
 network on a dense grid for every query (no cache, no distilled projection).
@@ -231,6 +232,34 @@ def bench_naive(model: Path, n: int) -> dict:
     return stats(times)
 
 
+#: Exact-set cases timed in-process (v_start, bounds in contract order): a parked car used to take
+#: tens of seconds here (GEOS unions of near-identical slices).
+EXACT_CASES = {
+    "exact_set_in_process_moving_8mps": (8.0, [-0.15, -1.5, -0.15, -1.5, 0.15, 1.5, 0.15, 1.5]),
+    "exact_set_in_process_parked": (0.0, [-0.05, -0.2, -0.05, -0.2, 0.05, 0.2, 0.05, 0.2]),
+    "exact_set_in_process_parked_zero_bounds": (0.0, [0.0] * 8),
+}
+
+
+def bench_exact_in_process(model: Path, n: int) -> dict[str, dict]:
+    """FRTEngine.exact alone (no HTTP, no queue): what an observation costs the worker."""
+    from service.engine import FRTEngine, Pose
+    from service.model_runtime import ValueModel
+
+    engine = FRTEngine(ValueModel.load(model, threads=1))
+    out = {}
+    for name, (v_start, bounds) in EXACT_CASES.items():
+        b = np.array(bounds)
+        engine.exact(Pose(0.0, 0.0, 0.0), v_start, b)  # warm-up
+        times = []
+        for _ in range(n):
+            t0 = time.perf_counter()
+            engine.exact(Pose(0.0, 0.0, 0.0), v_start, b)
+            times.append(time.perf_counter() - t0)
+        out[name] = stats(times)
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--model", type=Path, default=ROOT / "models" / "frt_unicycle.onnx")
@@ -249,6 +278,7 @@ def main() -> None:
         results["sustained_50_agents"] = asyncio.run(
             bench_sustained(url, 50, args.sustained_seconds, {})
         )
+    results.update(bench_exact_in_process(args.model.resolve(), args.observations))
     results["naive_dense_grid_per_query"] = bench_naive(args.model.resolve(), args.naive)
     warm = results["collision_check_20pt_warm"]["p50_ms"]
     naive = results["naive_dense_grid_per_query"]["p50_ms"]

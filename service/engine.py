@@ -6,14 +6,16 @@ the sets over s <= t (API.md, "The model contract").
 
 How a set is built (human frame: origin at the human, heading 0):
 
-* time is cut into slices s_j = j * slice_dt; for each slice the guaranteed outer bound of
-  ``models.outer_bound`` gives a box that contains every reachable position;
-* inside that box the network is evaluated on an (x, y) grid; at each node the heading and speed are
-  minimised over a small stencil around the arc-consistent guess (a constant-curvature arc from the
-  origin reaching (x, y) ends with heading 2 atan2(y, x)), clipped to the exact heading and speed
-  intervals; the slice K_j is the filled contour {min V <= delta};
-* between slices a car moves at most v_max * slice_dt / 2 from the nearest slice, so the tube up to
-  slice j is the union over i <= j of (K_i ⊕ v_max,i slice_dt / 2) ∩ (outer bound of that interval).
+* time is cut into slices s_j = j * slice_dt; at each instant the guaranteed outer bound of
+  ``models.outer_bound`` gives a convex polygon (16 support directions) containing every reachable
+  position, and one lattice of (x, y) nodes covers them all;
+* the network's projection W (or, without the distilled projection, the minimum of V over a small
+  heading/speed stencil around the arc-consistent guess) is evaluated only at the nodes inside each
+  instant's polygon, in one runtime call; the field max(W - level, polygon) gives K at s_j;
+* between instants a car moves at most v_max * slice_dt / 2 from the nearer one, so the tube is the
+  union of the instants' fields dilated on the grid by that much, each cut to the outer polygons of
+  its interval: a running minimum of fields, contoured once (``FieldTubeSet``) - no polygon unions
+  of near-identical slices, which made GEOS crawl for a parked car.
 
 Every exact set is contained in the outer bound by construction, so the outer bound is a valid
 conservative answer whenever the exact set is not ready (API.md: "conservative": true).
@@ -22,18 +24,19 @@ conservative answer whenever the exact set is not ready (API.md: "conservative":
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+import threading
+from dataclasses import dataclass
 
 import contourpy
 import numpy as np
 import shapely
 from shapely import affinity
-from shapely.geometry import Point, box, mapping
+from shapely.geometry import box, mapping
 from shapely.geometry.base import BaseGeometry
 
 from models.contract import BOUND_COLUMNS, COL, N_INPUTS
 from models.dynamics import wrap_angle
-from models.outer_bound import OuterBound, outer_bound
+from models.outer_bound import OuterBound, half_plane_polygons, outer_bound
 from service.model_runtime import ValueModel
 
 #: Slice spacing when the distilled projection network is present (its level is calibrated at it).
@@ -84,23 +87,34 @@ def signed_distance(geometry: BaseGeometry, xy: np.ndarray) -> np.ndarray:
     return np.where(inside, -depth, outside_distance)
 
 
-@dataclass
 class FRTSet:
-    """K for every slice and the tubes up to each slice, in the human frame."""
+    """K for every slice and the tubes up to each slice, in the human frame.
 
-    pose: Pose
-    slice_dt: float
-    horizon_s: float
-    slices: list[BaseGeometry]
-    tubes: list[BaseGeometry]
-    conservative: bool
-    evaluations: int = 0
-    _world_cache: dict = field(default_factory=dict, repr=False)
+    Slice j is the set reachable at exactly ``j * slice_dt``; tube j contains every position reached
+    during [0, j * slice_dt]. Subclasses say how a tube and a slice are built.
+    """
+
+    def __init__(
+        self, pose: Pose, slice_dt: float, horizon_s: float, n_slices: int, conservative: bool
+    ) -> None:
+        self.pose = pose
+        self.slice_dt = slice_dt
+        self.horizon_s = horizon_s
+        self.n_slices = n_slices
+        self.conservative = conservative
+        self.evaluations = 0
+        self._world_cache: dict = {}
+
+    def tube(self, j: int) -> BaseGeometry:
+        raise NotImplementedError
+
+    def slice(self, j: int) -> BaseGeometry:
+        raise NotImplementedError
 
     def tube_index(self, t_rel: float) -> int:
         """Index of the tube that contains every position reached in [0, t_rel]."""
         t = min(max(t_rel, 0.0), self.horizon_s)
-        return min(math.ceil(t / self.slice_dt - 1e-9), len(self.tubes) - 1)
+        return min(math.ceil(t / self.slice_dt - 1e-9), self.n_slices - 1)
 
     def clearance(self, xy_world: np.ndarray, t_rel: np.ndarray | None = None) -> np.ndarray:
         """Signed distance (m) from each world point to K (negative inside).
@@ -110,21 +124,21 @@ class FRTSet:
         """
         xy = to_human_frame(np.asarray(xy_world, dtype=float).reshape(-1, 2), self.pose)
         if t_rel is None:
-            return signed_distance(self.tubes[-1], xy)
+            return signed_distance(self.tube(self.n_slices - 1), xy)
         index = np.array([self.tube_index(float(t)) for t in np.asarray(t_rel).reshape(-1)])
         out = np.empty(len(xy))
         for j in np.unique(index):
             rows = index == j
-            out[rows] = signed_distance(self.tubes[j], xy[rows])
+            out[rows] = signed_distance(self.tube(int(j)), xy[rows])
         return out
 
     def geometry(self, kind: str, t: float | None = None) -> BaseGeometry:
         """K in the human frame: the whole tube, the tube up to t, or the slice nearest t."""
         if kind == "tube":
-            return self.tubes[-1] if t is None else self.tubes[self.tube_index(t)]
+            return self.tube(self.n_slices - 1 if t is None else self.tube_index(t))
         if kind == "slice":
             j = round(min(max(t or 0.0, 0.0), self.horizon_s) / self.slice_dt)
-            return self.slices[min(j, len(self.slices) - 1)]
+            return self.slice(min(j, self.n_slices - 1))
         raise ValueError(f"unknown kind {kind!r}")
 
     def geojson(self, kind: str, t: float | None, collision_radius: float) -> dict:
@@ -140,20 +154,26 @@ class FRTSet:
         return self._world_cache[key]
 
 
-@dataclass
 class BoxTubeSet(FRTSet):
-    """A tube given as a union of axis-aligned boxes (the outer bound); geometry built lazily."""
+    """The outer bound as a set: tube j is the union of the sweep boxes up to slice j."""
 
-    boxes: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
-    boxes_until: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
-    slice_boxes: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
-
-    def tube_index(self, t_rel: float) -> int:
-        t = min(max(t_rel, 0.0), self.horizon_s)
-        return min(math.ceil(t / self.slice_dt - 1e-9), len(self.boxes_until) - 1)
+    def __init__(
+        self,
+        pose: Pose,
+        slice_dt: float,
+        horizon_s: float,
+        boxes: np.ndarray,
+        boxes_until: np.ndarray,
+        slice_boxes: np.ndarray,
+    ) -> None:
+        super().__init__(pose, slice_dt, horizon_s, len(boxes_until), conservative=True)
+        self.boxes = boxes
+        self.boxes_until = boxes_until
+        self.slice_boxes = slice_boxes
+        self._unions: dict[int, BaseGeometry] = {}
 
     def clearance(self, xy_world: np.ndarray, t_rel: np.ndarray | None = None) -> np.ndarray:
-        """Distance to the union of boxes (exact outside; inside, the depth in the deepest box)."""
+        """Distance to the union of boxes (exact outside; inside, the depth in the union)."""
         xy = to_human_frame(np.asarray(xy_world, dtype=float).reshape(-1, 2), self.pose)
         b = self.boxes
         dx = np.maximum(b[None, :, 0] - xy[:, None, 0], xy[:, None, 0] - b[None, :, 1])
@@ -161,32 +181,198 @@ class BoxTubeSet(FRTSet):
         outside = np.hypot(np.maximum(dx, 0), np.maximum(dy, 0))
         distance = np.where((dx <= 0) & (dy <= 0), np.maximum(dx, dy), outside)
         if t_rel is None:
-            n = np.full(len(xy), self.boxes_until[-1])
+            index = np.full(len(xy), self.n_slices - 1)
         else:
-            idx = [self.tube_index(float(t)) for t in np.asarray(t_rel).reshape(-1)]
-            n = self.boxes_until[np.array(idx, dtype=int)]
+            index = np.array(
+                [self.tube_index(float(t)) for t in np.asarray(t_rel).reshape(-1)], dtype=int
+            )
+        n = self.boxes_until[index]
         mask = np.arange(len(b))[None, :] < n[:, None]
         result = np.where(mask, distance, np.inf).min(axis=1)
         for row in np.nonzero(result < 0)[0]:  # inside: the depth in the union, not in one box
-            geometry = self._union(int(np.searchsorted(self.boxes_until, n[row])))
-            result[row] = signed_distance(geometry, xy[row : row + 1])[0]
+            result[row] = signed_distance(self.tube(int(index[row])), xy[row : row + 1])[0]
         return result
 
-    def _union(self, j: int) -> BaseGeometry:
-        if j not in self._world_cache:
-            self._world_cache[j] = shapely.union_all(
-                [_box(b) for b in self.boxes[: self.boxes_until[j]]]
-            )
-        return self._world_cache[j]
+    def tube(self, j: int) -> BaseGeometry:
+        if j not in self._unions:
+            b = self.boxes[: self.boxes_until[j]]
+            self._unions[j] = shapely.union_all(shapely.box(b[:, 0], b[:, 2], b[:, 1], b[:, 3]))
+        return self._unions[j]
 
-    def geometry(self, kind: str, t: float | None = None) -> BaseGeometry:
-        if kind == "tube":
-            j = len(self.boxes_until) - 1 if t is None else self.tube_index(t)
-            return self._union(j)
-        if kind == "slice":
-            j = round(min(max(t or 0.0, 0.0), self.horizon_s) / self.slice_dt)
-            return _box(self.boxes[self.slice_boxes[min(j, len(self.slice_boxes) - 1)]])
-        raise ValueError(f"unknown kind {kind!r}")
+    def slice(self, j: int) -> BaseGeometry:
+        return _box(self.boxes[self.slice_boxes[j]])
+
+
+@dataclass(frozen=True)
+class Lattice:
+    """Nodes x0 + i * step, y0 + k * step shared by every slice of one set."""
+
+    x0: float
+    y0: float
+    step: float
+    nx: int
+    ny: int
+
+    def xs(self, i0: int, i1: int) -> np.ndarray:
+        return self.x0 + self.step * np.arange(i0, i1)
+
+    def ys(self, k0: int, k1: int) -> np.ndarray:
+        return self.y0 + self.step * np.arange(k0, k1)
+
+
+@dataclass(frozen=True)
+class SliceField:
+    """Field values on the lattice window [k0:k0+ny, i0:i0+nx]; +inf outside the window."""
+
+    k0: int
+    i0: int
+    values: np.ndarray  # [ny, nx]
+
+    def window(self, k0: int, i0: int, shape: tuple[int, int]) -> np.ndarray:
+        """The values on another window of the lattice (+inf where this field has none)."""
+        out = np.full(shape, _FAR, dtype=np.float32)
+        ny, nx = self.values.shape
+        dk0, di0 = max(self.k0, k0), max(self.i0, i0)
+        dk1 = min(self.k0 + ny, k0 + shape[0])
+        di1 = min(self.i0 + nx, i0 + shape[1])
+        if dk1 > dk0 and di1 > di0:
+            out[dk0 - k0 : dk1 - k0, di0 - i0 : di1 - i0] = self.values[
+                dk0 - self.k0 : dk1 - self.k0, di0 - self.i0 : di1 - self.i0
+            ]
+        return out
+
+    def contour(self, lattice: Lattice) -> BaseGeometry:
+        ny, nx = self.values.shape
+        xs, ys = lattice.xs(self.i0, self.i0 + nx), lattice.ys(self.k0, self.k0 + ny)
+        return _filled_contour(xs, ys, self.values, 0.0)
+
+
+#: A corner of an outer polygon turns by 2 pi / 16 = 22.5 degrees; the contour draws a chord across
+#: it between points on the grid lines within a cell diagonal of the corner, which cuts at most
+#: sqrt(2) sin(11.25 deg) = 0.28 node steps inside.
+CORNER_CHORD = 0.3
+
+#: Time window of one outer polygon in the cut of a tube (sagitta of a 15 m/s arc over it on a 20 m
+#: radius: about 9 cm).
+OUTER_WINDOW_S = 0.1
+
+#: Stands for "+inf" in a contoured field (contourpy needs finite values).
+_FAR = 1.0e6
+
+
+def running_minimum(fields: list[SliceField]) -> SliceField:
+    """The pointwise minimum of several windowed fields, on the window covering them all."""
+    k0 = min(f.k0 for f in fields)
+    i0 = min(f.i0 for f in fields)
+    k1 = max(f.k0 + f.values.shape[0] for f in fields)
+    i1 = max(f.i0 + f.values.shape[1] for f in fields)
+    out = np.full((k1 - k0, i1 - i0), _FAR, dtype=np.float32)
+    for f in fields:
+        ny, nx = f.values.shape
+        window = out[f.k0 - k0 : f.k0 - k0 + ny, f.i0 - i0 : f.i0 - i0 + nx]
+        np.minimum(window, f.values, out=window)
+    return SliceField(k0, i0, out)
+
+
+def minimum_filter_disc(values: np.ndarray, radius_nodes: float) -> np.ndarray:
+    """min of ``values`` over the nodes within ``radius_nodes`` (Euclidean) of each node; nodes
+    beyond the array count as +inf. On a field whose zero sublevel set is a set K, the result's
+    zero sublevel set is K grown by that radius (grid dilation)."""
+    r = math.floor(radius_nodes)
+    ny, nx = values.shape
+    padded = np.full((ny + 2 * r, nx + 2 * r), _FAR, dtype=values.dtype)
+    padded[r : r + ny, r : r + nx] = values
+    out = values.copy()
+    for dk in range(-r, r + 1):
+        for di in range(-r, r + 1):
+            if (dk or di) and dk * dk + di * di <= radius_nodes * radius_nodes:
+                np.minimum(out, padded[r + dk : r + dk + ny, r + di : r + di + nx], out=out)
+    return out
+
+
+class FieldTubeSet(FRTSet):
+    """The model's set from per-slice fields on one lattice; contours drawn lazily and cached.
+
+    Per slice j (instant s_j = j * slice_dt):
+
+    * ``instant[j]`` = max(W - level, P_j) with P_j the outer polygon at s_j (negative inside):
+      K at s_j is {instant_j <= 0};
+    * ``sweep[j]`` (j >= 1) = max(min(instant_(j-1), instant_j) grown by v_max * slice_dt / 2, Q_j)
+      with Q_j the outer polygons of [s_(j-1), s_j]: a position reached during that interval is
+      within v_max * dt / 2 of K at the nearer of its two ends, and inside Q_j. sweep[0] = instant[0],
+      the initial set.
+
+    Tube j is {min over i <= j of sweep_i <= 0} (the growth of instant_j spans one node step more,
+    so a thin part of the set between nodes is not lost), grown by the contour's corner chords and
+    cut to a union of outer polygons of [0, s_j] that lies inside the conservative box tube.
+    """
+
+    def __init__(
+        self,
+        pose: Pose,
+        slice_dt: float,
+        horizon_s: float,
+        lattice: Lattice,
+        instant: list[SliceField],
+        sweep: list[SliceField],
+        bound: OuterBound,
+        bound_rows: list[int],
+        outer: BoxTubeSet,
+    ) -> None:
+        super().__init__(pose, slice_dt, horizon_s, len(instant), conservative=False)
+        self.lattice = lattice
+        self.instant = instant
+        self.sweep = sweep
+        self.bound = bound
+        self.bound_rows = bound_rows
+        self.outer = outer
+        self._tubes: dict[int, BaseGeometry] = {}
+        self._slices: dict[int, BaseGeometry] = {}
+        self._lock = threading.Lock()
+
+    def _grow(self, k_set: BaseGeometry) -> BaseGeometry:
+        return k_set.buffer(self.lattice.step / 2, quad_segs=4) if not k_set.is_empty else k_set
+
+    def tube(self, j: int) -> BaseGeometry:
+        with self._lock:
+            cached = self._tubes.get(j)
+        if cached is not None:
+            return cached
+        k_set = running_minimum(self.sweep[: j + 1]).contour(self.lattice)
+        if not k_set.is_empty:
+            # The grid dilation already covers the node sampling; this covers the chords that
+            # linear interpolation draws across the outer polygons' corners, and the cut to the
+            # outer polygons (exact geometry, not sampled) takes the excess back along their edges.
+            k_set = k_set.buffer(CORNER_CHORD * self.lattice.step, quad_segs=4)
+            k_set = k_set.intersection(self.outer_tube(j))
+        with self._lock:
+            self._tubes[j] = k_set
+        return k_set
+
+    def outer_tube(self, j: int) -> BaseGeometry:
+        """A union of outer polygons that contains every position reached during [0, s_j]: one
+        polygon per ``OUTER_WINDOW_S`` (the support functions' maximum over its sweeps)."""
+        n = self.bound_rows[j]
+        if n == 0:
+            return self.outer.tube(0)
+        chunk = max(round(OUTER_WINDOW_S / float(self.bound.times[1] - self.bound.times[0])), 1)
+        support = self.bound.sweep_support
+        windows = np.stack([support[a : min(a + chunk, n)].max(axis=0) for a in range(0, n, chunk)])
+        polygons = shapely.polygons(half_plane_polygons(self.bound.directions, windows))
+        return shapely.union_all(polygons)
+
+    def slice(self, j: int) -> BaseGeometry:
+        with self._lock:
+            cached = self._slices.get(j)
+        if cached is not None:
+            return cached
+        k_set = self._grow(self.instant[j].contour(self.lattice))
+        if not k_set.is_empty and j > 0:
+            corners = self.bound.polygons_at([self.bound_rows[j]])[0]
+            k_set = k_set.intersection(shapely.Polygon(corners))
+        with self._lock:
+            self._slices[j] = k_set
+        return k_set
 
 
 def _geojson(geometry: BaseGeometry) -> dict:
@@ -286,40 +472,23 @@ class FRTEngine:
             v_start, np.asarray(bounds, float), self.horizon, self.outer_steps, 8, initial
         )
 
-    def _interval_regions(self, polygons: list[BaseGeometry]) -> list[BaseGeometry]:
-        """Per slice j, the union of the sweep polygons covering [s_j - dt/2, s_j + dt/2]."""
-        k = self.outer_steps_per_slice
-        regions = []
-        for j in range(self.n_slices):
-            lo, hi = max(j * k - k // 2, 0), min(j * k + (k + 1) // 2, len(polygons))
-            regions.append(shapely.union_all(polygons[lo:hi]))
-        return regions
-
-    def conservative(self, pose: Pose, v_start: float, bounds: np.ndarray) -> FRTSet:
+    def conservative(self, pose: Pose, v_start: float, bounds: np.ndarray) -> BoxTubeSet:
         """The outer bound as a set: contains the exact set, computed in well under a millisecond."""
-        ob = self.outer(v_start, bounds)
+        return self._box_tube(pose, self.outer(v_start, bounds))
+
+    def _box_tube(self, pose: Pose, ob: OuterBound) -> BoxTubeSet:
         k = self.outer_steps_per_slice
         upto = [min(j * k + (k + 1) // 2, len(ob.sweep)) for j in range(self.n_slices)]
         return BoxTubeSet(
             pose=pose,
             slice_dt=self.slice_dt,
             horizon_s=self.horizon,
-            slices=[],
-            tubes=[],
-            conservative=True,
             boxes=ob.sweep,
             boxes_until=np.array(upto),
             slice_boxes=np.array([min(j * k, len(ob.sweep) - 1) for j in range(self.n_slices)]),
         )
 
     # ----------------------------------------------------------------- exact set
-    def _grid(self, region: np.ndarray, resolution: float) -> tuple[np.ndarray, np.ndarray]:
-        x_lo, x_hi, y_lo, y_hi = region
-        pad = resolution
-        xs = np.arange(x_lo - pad, x_hi + pad + resolution, resolution)
-        ys = np.arange(y_lo - pad, y_hi + pad + resolution, resolution)
-        return xs, ys
-
     def stencil_min(
         self,
         s: float,
@@ -380,54 +549,109 @@ class FRTEngine:
         x[:, 6:] = bounds
         return self.model.evaluate_projection(x), len(px)
 
-    def exact(self, pose: Pose, v_start: float, bounds: np.ndarray) -> FRTSet:
-        """The model's set {V <= delta}, projected on (x, y), per slice and as tubes."""
+    def exact(self, pose: Pose, v_start: float, bounds: np.ndarray) -> FieldTubeSet:
+        """The model's set {W <= level} ∩ outer bound, sampled per slice (see FieldTubeSet); the
+        whole tube is built at once (collision checks need it first), the rest on demand."""
         bounds = np.asarray(bounds, dtype=np.float32)
         ob = self.outer(v_start, bounds)
-        polygons = [shapely.Polygon(p) for p in ob.sweep_polygons()]
-        boxes = self._interval_regions(polygons)
         k = self.outer_steps_per_slice
-        regions = [ob.sweep[min(j * k, len(ob.sweep) - 1)] for j in range(self.n_slices)]
-        areas = np.array([(r[1] - r[0] + 1) * (r[3] - r[2] + 1) for r in regions])
-        resolution = max(self.resolution_m, math.sqrt(areas.sum() / self.max_nodes))
-        grids = [self._grid(regions[j], resolution) for j in range(1, self.n_slices)]
-        meshes = [np.meshgrid(xs, ys) for xs, ys in grids]
-        times = [j * self.slice_dt for j in range(1, self.n_slices)]
-        if self.use_projection:  # one runtime call for every slice
-            px = np.concatenate([gx.ravel() for gx, _ in meshes])
-            py = np.concatenate([gy.ravel() for _, gy in meshes])
-            t = np.concatenate(
-                [np.full(gx.size, s) for (gx, _), s in zip(meshes, times, strict=True)]
+        n_sweeps = len(ob.sweep)
+        rows = [j * k for j in range(self.n_slices)]
+        # Sweeps of [s_(j-1), s_j] (``before``) and the window of slice j, which spans
+        # [s_(j-1), s_(j+1)] so that both neighbours' intervals fit in it.
+        before = [range(max(r - k, 0), r) for r in rows]
+        spans = [range(max(r - k, 0), min(r + k, n_sweeps)) for r in rows]
+        box_at = ob.box_at[rows[1:]]
+        # The node budget is spread over the slices' areas (an ellipse in each outer box).
+        areas = (box_at[:, 1] - box_at[:, 0]) * (box_at[:, 3] - box_at[:, 2]) * (math.pi / 4)
+        step = max(self.resolution_m, math.sqrt(areas.sum() / self.max_nodes))
+        lattice = Lattice(
+            x0=math.floor(ob.sweep[:, 0].min() / step) * step - 8 * step,
+            y0=math.floor(ob.sweep[:, 2].min() / step) * step - 8 * step,
+            step=step,
+            nx=math.ceil((ob.sweep[:, 1].max() - ob.sweep[:, 0].min()) / step) + 17,
+            ny=math.ceil((ob.sweep[:, 3].max() - ob.sweep[:, 2].min()) / step) + 17,
+        )
+        normals = np.stack([np.cos(ob.directions), np.sin(ob.directions)], axis=1).T
+
+        windows, clips, interval_clips, inside = [], [], [], []
+        for j, span in enumerate(spans):
+            region = ob.sweep[list(span)]
+            i0 = max(math.floor((region[:, 0].min() - lattice.x0) / step) - 1, 0)
+            i1 = min(math.ceil((region[:, 1].max() - lattice.x0) / step) + 2, lattice.nx)
+            k0 = max(math.floor((region[:, 2].min() - lattice.y0) / step) - 1, 0)
+            k1 = min(math.ceil((region[:, 3].max() - lattice.y0) / step) + 2, lattice.ny)
+            gx, gy = np.meshgrid(lattice.xs(i0, i1), lattice.ys(k0, k1))
+            projections = np.stack([gx.ravel(), gy.ravel()], axis=1) @ normals  # [N, M]
+            interval_clip = (
+                np.min([(projections - ob.sweep_support[i]).max(axis=1) for i in before[j]], axis=0)
+                if j > 0
+                else np.full(gx.size, _FAR)
             )
-            flat, evaluations = self.projected_value(t, px, py, v_start, bounds)
-            split = np.split(flat, np.cumsum([gx.size for gx, _ in meshes])[:-1])
-        else:
-            split, evaluations = [], 0
-            for (gx, gy), s in zip(meshes, times, strict=True):
-                values, n = self.stencil_min(s, gx.ravel(), gy.ravel(), v_start, bounds, ob)
-                split.append(values)
-                evaluations += n
-        slices: list[BaseGeometry] = [Point(0.0, 0.0).buffer(self.radius_m, quad_segs=16)]
-        for j, ((xs, ys), (gx, _), values) in enumerate(zip(grids, meshes, split, strict=True), 1):
-            k_set = _filled_contour(xs, ys, values.reshape(gx.shape), self.level)
-            # Half a grid cell outward: a thin part of the set between nodes is not lost.
-            k_set = k_set.buffer(resolution / 2, quad_segs=4) if not k_set.is_empty else k_set
-            sweep = min(j * self.outer_steps_per_slice, len(ob.sweep) - 1)
-            slices.append(k_set.intersection(polygons[sweep]))
-        tubes: list[BaseGeometry] = []
-        running: BaseGeometry = shapely.Polygon()
-        for j, k_set in enumerate(slices):
-            t_idx = int(np.argmin(np.abs(ob.times - j * self.slice_dt)))
-            reach = float(ob.speed[min(t_idx + 1, len(ob.speed) - 1), 1]) * self.slice_dt / 2
-            grown = k_set.buffer(reach, quad_segs=4) if not k_set.is_empty else k_set
-            running = shapely.union(running, grown.intersection(boxes[j]))
-            tubes.append(running)
-        return FRTSet(
+            if j == 0:
+                clip = np.hypot(gx, gy) - self.radius_m
+            else:
+                clip = (projections - ob.support_at[rows[j]]).max(axis=1).reshape(gx.shape)
+            windows.append((k0, i0, gx, gy))
+            clips.append(clip.astype(np.float32))
+            interval_clips.append(interval_clip.reshape(gx.shape).astype(np.float32))
+            inside.append(clip <= 0 if j > 0 else np.zeros(clip.shape, dtype=bool))
+        values, evaluations = self._values_inside(windows, inside, v_start, bounds, ob)
+        instant, grown = [], []
+        for j, ((k0, i0, _, _), clip, mask, w) in enumerate(
+            zip(windows, clips, inside, values, strict=True)
+        ):
+            field_values = clip.copy()
+            field_values[mask] = np.maximum(w - self.level, clip[mask])
+            instant.append(SliceField(k0, i0, field_values))
+            speed = ob.sweep_speed_max[list(spans[j])].max() if j > 0 else 0.0
+            # Grid dilation by how far a car moves in half a slice, plus one node step for the
+            # node sampling.
+            radius = float(speed) * self.slice_dt / 2 / step + 1.0
+            grown.append(SliceField(k0, i0, minimum_filter_disc(field_values, radius)))
+        sweep = [instant[0]]
+        for j in range(1, self.n_slices):
+            k0, i0, _, _ = windows[j]
+            near = np.minimum(grown[j].values, grown[j - 1].window(k0, i0, grown[j].values.shape))
+            sweep.append(SliceField(k0, i0, np.maximum(near, interval_clips[j])))
+        frt = FieldTubeSet(
             pose,
             self.slice_dt,
             self.horizon,
-            slices,
-            tubes,
-            conservative=False,
-            evaluations=evaluations,
+            lattice,
+            instant,
+            sweep,
+            ob,
+            rows,
+            self._box_tube(pose, ob),
         )
+        frt.evaluations = evaluations
+        frt.tube(self.n_slices - 1)
+        return frt
+
+    def _values_inside(
+        self,
+        windows: list[tuple[int, int, np.ndarray, np.ndarray]],
+        inside: list[np.ndarray],
+        v_start: float,
+        bounds: np.ndarray,
+        ob: OuterBound,
+    ) -> tuple[list[np.ndarray], int]:
+        """W (or the stencil minimum of V) at the nodes inside each slice's outer polygon."""
+        times = [j * self.slice_dt for j in range(self.n_slices)]
+        counts = [int(m.sum()) for m in inside]
+        if self.use_projection:  # one runtime call for every slice
+            px = np.concatenate([gx[m] for (_, _, gx, _), m in zip(windows, inside, strict=True)])
+            py = np.concatenate([gy[m] for (_, _, _, gy), m in zip(windows, inside, strict=True)])
+            t = np.repeat(np.array(times), counts)
+            flat, evaluations = self.projected_value(t, px, py, v_start, bounds)
+            return np.split(flat, np.cumsum(counts)[:-1]), evaluations
+        values, evaluations = [], 0
+        for (_, _, gx, gy), m, s in zip(windows, inside, times, strict=True):
+            if not m.any():
+                values.append(np.zeros(0, dtype=np.float32))
+                continue
+            v, n = self.stencil_min(s, gx[m], gy[m], v_start, bounds, ob)
+            values.append(v)
+            evaluations += n
+        return values, evaluations

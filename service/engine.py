@@ -39,8 +39,9 @@ from models.dynamics import wrap_angle
 from models.outer_bound import OuterBound, half_plane_polygons, outer_bound
 from service.model_runtime import ValueModel
 
-#: Slice spacing when the distilled projection network is present (its level is calibrated at it).
-PROJECTION_SLICE_DT = 0.05
+#: Slice spacing when the distilled projection network is present (its level is calibrated on the
+#: 0.05 s grid, which contains this one).
+PROJECTION_SLICE_DT = 0.1
 
 
 @dataclass(frozen=True)
@@ -419,7 +420,7 @@ class FRTEngine:
         max_nodes: int | None = None,
         heading_samples: int = 3,
         speed_samples: int = 3,
-        outer_steps_per_slice: int = 2,
+        outer_step_s: float = 0.025,
         projection: bool = True,
     ) -> None:
         self.model = model
@@ -433,13 +434,14 @@ class FRTEngine:
         self._max_nodes = max_nodes
         self.heading_samples = heading_samples
         self.speed_samples = speed_samples
-        self.outer_steps = (self.n_slices - 1) * outer_steps_per_slice
-        self.outer_steps_per_slice = outer_steps_per_slice
+        # The outer bound's sweeps stay 0.025 s long whatever the slice spacing.
+        self.outer_steps_per_slice = max(round(self.slice_dt / outer_step_s), 1)
+        self.outer_steps = (self.n_slices - 1) * self.outer_steps_per_slice
         stencil = self.card.raw.get("projection") or {}
         self.level = float(stencil.get("delta", self.card.delta))
         if self.use_projection:
             self.level = float(self.card.raw["projection_graph"]["delta"])
-        self.max_nodes = max_nodes or (12000 if self.use_projection else 6000)
+        self.max_nodes = max_nodes or 6000
         self.radius_m = float(self.card.initial_set.get("radius_m", 0.5))
 
     # ----------------------------------------------------------------- validation

@@ -25,11 +25,12 @@ DEFAULT_MODEL = ROOT / "models" / "frt_unicycle.onnx"
 #: answers, never the service's conservative fallback (which the results would then record).
 DEADLINE_MS = 60_000.0
 CLIENT_TIMEOUT_S = 120.0
-#: Workaround of the engine's cost at very low speed: with v_start below about 0.25 m/s the
-#: service's exact set takes ~10 s (measured: 61 ``shapely.union`` calls of nearly coincident
-#: slices in ``FRTEngine.exact``; ~40 ms at any higher speed). Below this speed the experiments do
-#: not wait for the exact set: the planner's checks use a short deadline and may be answered from
-#: the conservative outer bound (a superset: a safe answer, counted separately in the results).
+#: Workaround, kept so that the committed results reproduce, of an engine cost fixed since: with
+#: v_start below about 0.25 m/s the service's exact set took ~10 s (61 ``shapely.union`` calls of
+#: nearly coincident slices; the field engine takes ~8 ms). Below this speed the experiments do not
+#: wait for the exact set: the planner's checks use a short deadline and may be answered from the
+#: conservative outer bound (a superset: a safe answer, counted separately in the results).
+#: Set to 0 and re-run ``make scenarios`` to include parked cars.
 SLOW_SPEED_MPS = 0.3
 #: Deadline of a check while the human is below ``SLOW_SPEED_MPS`` (ms).
 AT_REST_DEADLINE_MS = 200.0

@@ -49,7 +49,7 @@ def local_server(
 ) -> Iterator[str]:
     """Run ``uvicorn service.app:app`` on a free loopback port; yield its URL.
 
-    ``workers`` is the service's ``FRT_FRT_WORKERS`` (threads computing exact FRTs). Server logs
+    ``workers`` is the service's ``FRT_FRT_WORKERS`` (workers computing exact FRTs). Server logs
     go to ``log_path``.
     """
     port = free_port()

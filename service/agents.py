@@ -163,7 +163,9 @@ async def observe(
         return build(current, mean, cov)
 
     state = await services.store.update(agent_id, apply, timestamp=request.timestamp)
-    services.submit(services.job_for(state))
+    job = services.job_for(state)
+    services.submit(job)
+    services.prepare_conservative(job)
     belief = Belief.from_dict(state.belief)
     probs, _ = belief_out(belief)
     return ObservationResponse(
@@ -181,7 +183,7 @@ async def observe(
 def _same(a: AgentState | None, b: AgentState | None) -> bool:
     if a is None or b is None:
         return a is b
-    return a.to_dict() == b.to_dict()
+    return a == b  # field by field, lists and dicts by value: what comparing to_dict() did
 
 
 def check_ranges(engine: FRTEngine, v_start: float, bounds: np.ndarray, bounds_field: str) -> None:

@@ -1,4 +1,7 @@
-"""Background computation of exact FRTs on a small thread pool, with an LRU cache of the results.
+"""Background computation of exact FRTs on a few workers, with an LRU cache of the results.
+
+Workers are threads or, in the server, processes (:mod:`service.exact_worker`): an exact set is
+~17 ms of numpy and onnxruntime that, on a thread, would hold the event loop's GIL.
 
 An observation submits the exact set of the agent's new FRT version and returns at once; a collision
 check waits for that set only until its deadline (:meth:`FRTScheduler.wait`) and otherwise answers
@@ -10,14 +13,15 @@ versions restart, or another replica's state).
 from __future__ import annotations
 
 import asyncio
+import functools
 import hashlib
 import logging
 import struct
 import threading
 import time
 from collections import OrderedDict
-from collections.abc import Callable, Sequence
-from concurrent.futures import Future, ThreadPoolExecutor
+from collections.abc import Callable, Hashable, Sequence
+from concurrent.futures import BrokenExecutor, CancelledError, Executor, Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any
 
@@ -64,23 +68,59 @@ class LRUCache:
 
 
 class FRTScheduler:
+    """Exact sets computed on an executor (threads, or worker processes: :meth:`use_executor`),
+    at most ``workers`` at a time.
+
+    Sets wait in the scheduler's own queue, one per agent, until a worker is free: a newer version
+    of an agent replaces its queued older one in place (so an agent observed faster than its sets
+    can be computed is not starved), and a version older than one queued or running for the same
+    agent is not started at all. Only then does a set go to the executor, which therefore never holds
+    a superseded one.
+    """
+
     def __init__(self, *, workers: int, cache_size: int, metrics: Metrics) -> None:
         self._workers = workers
         self._cache_size = cache_size
         self._metrics = metrics
-        self._executor: ThreadPoolExecutor | None = None
+        self._executor: Executor | None = None
         self._cache: OrderedDict[FRTKey, Any] = OrderedDict()
-        self._pending: dict[FRTKey, Future[Any]] = {}
+        self._pending: dict[FRTKey, _Job] = {}  # queued or running
+        self._queue: OrderedDict[Hashable, FRTKey] = OrderedDict()  # one per agent, FIFO
+        self._running: set[FRTKey] = set()
+        self._discard: set[FRTKey] = set()  # running for a forgotten agent: do not cache
         self._lock = threading.RLock()  # done-callbacks may run inline in submit()
 
+    @property
+    def workers(self) -> int:
+        return self._workers
+
     def start(self) -> None:
-        if self._executor is None:
-            self._executor = ThreadPoolExecutor(self._workers, thread_name_prefix="frt-exact")
+        with self._lock:
+            if self._executor is None:
+                self._executor = ThreadPoolExecutor(self._workers, thread_name_prefix="frt-exact")
+
+    def use_executor(self, executor: Executor) -> None:
+        """Compute on ``executor`` from now on (e.g. a process pool; its tasks must then pickle).
+        Sets already started finish where they are; the scheduler shuts ``executor`` down."""
+        with self._lock:
+            old = self._executor
+            self._executor = executor
+        if old is not None:
+            old.shutdown(wait=False)
+        self._dispatch()
 
     def shutdown(self) -> None:
-        if self._executor is not None:
-            self._executor.shutdown(wait=False, cancel_futures=True)
-            self._executor = None
+        with self._lock:
+            executor, self._executor = self._executor, None
+            queued = [self._pending.pop(key) for key in self._queue.values()]
+            self._queue.clear()
+        for job in queued:
+            job.future.cancel()
+        if executor is not None:
+            # Worker processes are waited for (at most the sets they are computing) so that none
+            # outlives the server; threads are not.
+            wait = not isinstance(executor, ThreadPoolExecutor)
+            executor.shutdown(wait=wait, cancel_futures=True)
 
     def lookup(self, key: FRTKey) -> Any | None:
         """The cached set for ``key`` (marking it recently used), or ``None``."""
@@ -95,9 +135,12 @@ class FRTScheduler:
             return key in self._cache
 
     def submit(self, key: FRTKey, compute: Callable[[], Any]) -> Future[Any]:
-        """Start computing ``key`` unless it is cached or under way; queued older versions of the same
-        agent are cancelled, since no one will ask for them any more."""
+        """Start computing ``key`` unless it is cached or under way. A queued older version of the
+        same agent is cancelled and this one takes its place in the queue; if a newer version is
+        queued or running, this one is not computed (the returned future is cancelled)."""
         with self._lock:
+            if self._executor is None:
+                raise RuntimeError("scheduler not started")
             cached = self._cache.get(key)
             if cached is not None:
                 done: Future[Any] = Future()
@@ -105,17 +148,23 @@ class FRTScheduler:
                 return done
             pending = self._pending.get(key)
             if pending is not None:
-                return pending
+                return pending.future
+            future: Future[Any] = Future()
+            slot: Hashable = key.agent_id or key
             if key.agent_id:
-                for other, fut in list(self._pending.items()):
-                    if other.agent_id == key.agent_id and other.version < key.version:
-                        fut.cancel()  # only succeeds while still queued
-            if self._executor is None:
-                raise RuntimeError("scheduler not started")
-            fut = self._executor.submit(self._run, compute)
-            self._pending[key] = fut
-            fut.add_done_callback(lambda f: self._done(key, f))
-            return fut
+                if any(
+                    k.agent_id == key.agent_id and k.version > key.version
+                    for k in (*self._running, *self._queue.values())
+                ):
+                    future.cancel()
+                    return future
+                older = self._queue.get(slot)
+                if older is not None:
+                    self._pending.pop(older).future.cancel()
+            self._pending[key] = _Job(compute, future)
+            self._queue[slot] = key  # an existing slot keeps its place
+        self._dispatch()
+        return future
 
     async def wait(
         self,
@@ -141,6 +190,8 @@ class FRTScheduler:
         submitted = self.submit(key, compute)
         if under_way and not wait_if_queued and not (submitted.running() or submitted.done()):
             return None
+        if submitted.cancelled():
+            return None
         future = asyncio.wrap_future(submitted)
         if timeout_s > 0:
             await asyncio.wait({future}, timeout=timeout_s)
@@ -152,31 +203,91 @@ class FRTScheduler:
         with self._lock:
             for key in [k for k in self._cache if k.agent_id == agent_id]:
                 del self._cache[key]
-            for key, fut in list(self._pending.items()):
-                if key.agent_id == agent_id:
-                    fut.cancel()
+            queued = self._queue.pop(agent_id, None)
+            job = self._pending.pop(queued) if queued is not None else None
+            self._discard.update(k for k in self._running if k.agent_id == agent_id)
+        if job is not None:
+            job.future.cancel()
 
-    def _run(self, compute: Callable[[], Any]) -> Any:
-        start = time.perf_counter()
-        result = compute()
-        self._metrics.frt_compute_seconds.labels("exact").observe(time.perf_counter() - start)
-        return result
+    def _dispatch(self) -> None:
+        """Hand queued sets to the executor while fewer than ``workers`` are running."""
+        while True:
+            with self._lock:
+                if self._executor is None or not self._queue:
+                    return
+                if len(self._running) >= self._workers:
+                    return
+                _, key = self._queue.popitem(last=False)
+                job = self._pending[key]
+                if not job.future.set_running_or_notify_cancel():
+                    del self._pending[key]
+                    continue
+                self._running.add(key)
+                executor = self._executor
+                try:
+                    handle = executor.submit(_timed, job.compute)
+                except Exception as exc:  # e.g. a broken process pool; _finished says so
+                    handle = Future()
+                    handle.set_exception(exc)
+            handle.add_done_callback(functools.partial(self._finished, key))
 
-    def _done(self, key: FRTKey, fut: Future[Any]) -> None:
+    def _finished(self, key: FRTKey, handle: Future[Any]) -> None:
         with self._lock:
-            self._pending.pop(key, None)
-            if fut.cancelled():
-                return
-            error = fut.exception()
+            self._running.discard(key)
+            job = self._pending.pop(key, None)
+            discard = key in self._discard
+            self._discard.discard(key)
+            error = handle.exception() if not handle.cancelled() else CancelledError()
             if error is None:
-                self._cache[key] = fut.result()
-                self._cache.move_to_end(key)
-                while len(self._cache) > self._cache_size:
-                    self._cache.popitem(last=False)
-                return
+                result, seconds = handle.result()
+                if not discard:
+                    self._cache[key] = result
+                    self._cache.move_to_end(key)
+                    while len(self._cache) > self._cache_size:
+                        self._cache.popitem(last=False)
+        if isinstance(error, BrokenExecutor) and job is not None and self._fall_back(key, job):
+            return
+        self._dispatch()
+        if job is None:
+            return
+        if error is None:
+            self._metrics.frt_compute_seconds.labels("exact").observe(seconds)
+            job.future.set_result(result)
+            return
+        job.future.set_exception(error)
         self._metrics.frt_failures.inc()
         log.error(
             "exact FRT failed",
             extra={"agent_id": key.agent_id, "frt_version": key.version, "error": repr(error)},
             exc_info=error,
         )
+
+    def _fall_back(self, key: FRTKey, job: _Job) -> bool:
+        """The executor broke (a worker process died): log it, compute on threads from now on, and
+        run ``job`` again there. False if the executor was already threads."""
+        with self._lock:
+            broken = self._executor
+            if broken is None or isinstance(broken, ThreadPoolExecutor):
+                return False
+            log.error("FRT worker processes failed: computing exact sets on threads from now on")
+            self._executor = ThreadPoolExecutor(self._workers, thread_name_prefix="frt-exact")
+            self._pending[key] = job
+            self._running.add(key)
+            handle = self._executor.submit(_timed, job.compute)
+        broken.shutdown(wait=False, cancel_futures=True)
+        handle.add_done_callback(functools.partial(self._finished, key))
+        self._dispatch()
+        return True
+
+
+@dataclass
+class _Job:
+    compute: Callable[[], Any]
+    future: Future[Any]
+
+
+def _timed(compute: Callable[[], Any]) -> tuple[Any, float]:
+    """``compute()`` and its duration in seconds (module level: it runs in worker processes too)."""
+    start = time.perf_counter()
+    result = compute()
+    return result, time.perf_counter() - start

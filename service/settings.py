@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from functools import lru_cache
 from pathlib import Path
+from typing import Literal
 
 from pydantic import Field
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -36,8 +37,13 @@ class Settings(BaseSettings):
     store_url: str | None = None
 
     # Scheduling of the exact FRT and the latency budget of collision checks.
-    #: Threads computing exact FRTs in the background (CPU-bound: keep at or below the core count).
+    #: Workers computing exact FRTs in the background (CPU-bound: keep at or below the core count).
     frt_workers: int = Field(2, ge=1, le=64)
+    #: "process": workers are processes, each with its own engine (the event loop keeps its GIL);
+    #: "thread": threads of the server process (also the fallback if processes cannot start).
+    frt_executor: Literal["process", "thread"] = "process"
+    #: Niceness added to worker processes: on a busy machine the server's requests run first.
+    frt_worker_nice: int = Field(5, ge=0, le=19)
     #: Exact FRTs kept in memory, keyed by (agent, FRT version, inputs); least recently used go first.
     frt_cache_size: int = Field(1024, ge=1)
     #: Default deadline of a collision check, measured from the request's arrival.

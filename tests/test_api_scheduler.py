@@ -1,14 +1,24 @@
-"""The exact-FRT scheduler: dedupe, waiting with a deadline, LRU, superseded versions, failures."""
+"""The exact-FRT scheduler: dedupe, waiting with a deadline, LRU, superseded versions, failures,
+worker processes."""
 
 from __future__ import annotations
 
 import asyncio
+import multiprocessing
+import os
+import pickle
 import threading
 from collections.abc import Iterator
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
 
+import numpy as np
 import pytest
 
+from service.engine import FRTEngine, Pose
+from service.exact_worker import ExactTask, start_pool
 from service.metrics import Metrics
+from service.model_runtime import ValueModel
 from service.scheduler import FRTKey, FRTScheduler
 
 
@@ -104,3 +114,90 @@ def test_queued_sets_are_not_waited_for_by_collision_checks(scheduler: FRTSchedu
         assert await scheduler.wait(key("q", 1), lambda: "late", 5.0) == "late"
 
     asyncio.run(scenario())
+
+
+def test_a_version_older_than_one_running_is_not_started(scheduler: FRTScheduler) -> None:
+    gate = threading.Event()
+    calls: list[str] = []
+    running = scheduler.submit(key("a", 5), lambda: gate.wait(5))
+    stale = scheduler.submit(key("a", 4), lambda: calls.append("stale"))
+    assert stale.cancelled()
+    gate.set()
+    assert running.result(5) is True
+    assert run(scheduler, key("b", 1), "next") == "next"  # the worker moved on
+    assert calls == []
+
+
+def test_a_newer_version_takes_its_agents_place_in_the_queue(scheduler: FRTScheduler) -> None:
+    """An agent observed faster than its sets are computed is not starved by the others."""
+    gate = threading.Event()
+    order: list[str] = []
+    scheduler.submit(key("busy", 1), lambda: gate.wait(5))
+    scheduler.submit(key("x", 1), lambda: order.append("x1"))
+    y1 = scheduler.submit(key("y", 1), lambda: order.append("y1"))
+    scheduler.submit(key("x", 2), lambda: order.append("x2"))
+    gate.set()
+    y1.result(5)
+    assert order == ["x2", "y1"]
+
+
+@pytest.fixture(scope="module")
+def engine(analytic_model_path: Path) -> FRTEngine:
+    return FRTEngine(ValueModel.load(analytic_model_path))
+
+
+BOUNDS = np.array([-0.3, -2.0, -0.2, -1.0, 0.3, 1.5, 0.25, 2.0])
+
+
+def test_exact_sets_pickle_with_their_lazy_parts(engine: FRTEngine) -> None:
+    frt = engine.exact(Pose(3.0, -2.0, 0.4), 6.0, BOUNDS)
+    copy = pickle.loads(pickle.dumps(frt))
+    assert type(copy) is type(frt)
+    assert copy.tube(copy.n_slices - 1).equals(frt.tube(frt.n_slices - 1))
+    assert copy.slice(10).equals(frt.slice(10))  # drawn after the trip, from the shipped fields
+    assert copy.geojson("slice", 2.0, 1.5) == frt.geojson("slice", 2.0, 1.5)
+
+
+def test_worker_processes_compute_the_same_set_as_threads(
+    engine: FRTEngine, analytic_model_path: Path
+) -> None:
+    pose, v_start = Pose(3.0, -2.0, 0.4), 6.0
+    here = engine.exact(pose, v_start, BOUNDS)
+    s = FRTScheduler(workers=1, cache_size=4, metrics=Metrics())
+    s.start()
+    s.use_executor(start_pool(analytic_model_path, workers=1, nice=0))
+    try:
+        task = ExactTask(pose, v_start, BOUNDS, engine)
+        there = asyncio.run(s.wait(key("p", 1), task, 60.0))
+    finally:
+        s.shutdown()
+    assert there is not None and there is not here
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(-20.0, 40.0, size=(300, 2))
+    t_rel = rng.uniform(0.0, 3.0, size=300)
+    assert np.array_equal(there.clearance(xy, t_rel), here.clearance(xy, t_rel))
+    assert np.array_equal(there.clearance(xy), here.clearance(xy))
+    assert there.slice(20).equals(here.slice(20))
+
+
+class _DiesInAWorker:
+    """A task that kills the worker process running it, but works in the server's own."""
+
+    def __init__(self) -> None:
+        self.parent = os.getpid()
+
+    def __call__(self) -> str:
+        if os.getpid() != self.parent:
+            os._exit(1)
+        return "on a thread"
+
+
+def test_a_broken_worker_pool_falls_back_to_threads() -> None:
+    s = FRTScheduler(workers=1, cache_size=4, metrics=Metrics())
+    s.start()
+    s.use_executor(ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")))
+    try:
+        assert asyncio.run(s.wait(key("d", 1), _DiesInAWorker(), 60.0)) == "on a thread"
+        assert run(s, key("d", 2), "still computing") == "still computing"
+    finally:
+        s.shutdown()

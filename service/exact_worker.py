@@ -1,0 +1,133 @@
+"""Exact FRTs in worker processes: one engine per process, results sent back by pickle.
+
+The event loop shares the GIL with any thread in its process, so an exact set (~17 ms of numpy,
+onnxruntime and Python) computed in a thread slows every request answered meanwhile. Here each
+worker process loads the model once (:func:`init_worker`, from the same model path as the server)
+and runs :class:`ExactTask`\\ s; the result, a :class:`~service.engine.FieldTubeSet` with its eagerly
+built whole tube and the small arrays its slices are drawn from later, comes back by pickle between
+our own processes (trusted IPC). Its lock does not pickle: :func:`_reduce_frt_set` drops it and
+:func:`_rebuild_frt_set` makes a fresh one.
+
+Workers run at a lower priority (``nice``) than the server, so that on a busy machine the event loop
+answers first and exact sets use what is left. A worker exits when its server does (even a killed
+one). If worker processes cannot be started, :func:`start_pool` says why and the caller keeps
+threads.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copyreg
+import logging
+import multiprocessing
+import os
+import threading
+import time
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from service.engine import BoxTubeSet, FieldTubeSet, FRTEngine, FRTSet, Pose
+
+log = logging.getLogger("frt.exact_worker")
+
+_LOCK_TYPES = (type(threading.Lock()), type(threading.RLock()))
+
+#: The engine of this worker process (None in the server process).
+_engine: FRTEngine | None = None
+
+
+def _reduce_frt_set(frt: FRTSet) -> tuple[Any, ...]:
+    state = {k: (None if isinstance(v, _LOCK_TYPES) else v) for k, v in vars(frt).items()}
+    locks = [k for k, v in vars(frt).items() if isinstance(v, _LOCK_TYPES)]
+    return _rebuild_frt_set, (type(frt), state, locks)
+
+
+def _rebuild_frt_set(cls: type, state: dict[str, Any], locks: list[str]) -> FRTSet:
+    frt = cls.__new__(cls)
+    vars(frt).update(state)
+    for name in locks:
+        setattr(frt, name, threading.Lock())
+    return frt  # type: ignore[no-any-return]
+
+
+for _cls in (FieldTubeSet, BoxTubeSet):
+    copyreg.pickle(_cls, _reduce_frt_set)
+
+
+@dataclass
+class ExactTask:
+    """``engine.exact(pose, v_start, bounds)``: with the given engine (threads) or, once pickled to
+    a worker process, with that process's own."""
+
+    pose: Pose
+    v_start: float
+    bounds: np.ndarray
+    engine: FRTEngine | None = field(default=None, repr=False, compare=False)
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return ExactTask, (self.pose, self.v_start, self.bounds)
+
+    def __call__(self) -> FRTSet:
+        engine = self.engine if self.engine is not None else _engine
+        if engine is None:
+            raise RuntimeError("no engine in this process")
+        return engine.exact(self.pose, self.v_start, self.bounds)
+
+
+def init_worker(model_path: str, nice: int, parent_pid: int) -> None:
+    """Process initializer: lower the priority, load the engine, warm it, watch the parent."""
+    global _engine
+    if nice:
+        with contextlib.suppress(OSError):  # not permitted here: run at the server's priority
+            os.nice(nice)
+    from service.model_runtime import ValueModel
+
+    _engine = FRTEngine(ValueModel.load(Path(model_path)))
+    # The first runtime call and contour are slower than the rest: take them before any request.
+    bounds = np.array([-0.15, -1.5, -0.15, -1.5, 0.15, 1.5, 0.15, 1.5], dtype=np.float64)
+    lo, hi = _engine.card.ranges["v_start"]
+    with contextlib.suppress(Exception):  # bounds outside a model's ranges: warm on a real set
+        _engine.exact(Pose(0.0, 0.0, 0.0), min(max(5.0, lo), hi), bounds)
+    threading.Thread(target=_exit_with_parent, args=(parent_pid,), daemon=True).start()
+
+
+def _exit_with_parent(parent_pid: int) -> None:
+    while True:
+        time.sleep(1.0)
+        if os.getppid() != parent_pid:
+            os._exit(0)
+
+
+def _ping(pause_s: float) -> int:
+    time.sleep(pause_s)  # long enough that one ready worker does not take every ping
+    return os.getpid()
+
+
+def start_pool(
+    model_path: Path, workers: int, nice: int, timeout_s: float = 120.0
+) -> ProcessPoolExecutor:
+    """A pool of ``workers`` processes, each with the engine loaded and warmed; raises if they cannot
+    all be started within ``timeout_s``."""
+    pool = ProcessPoolExecutor(
+        workers,
+        mp_context=multiprocessing.get_context("spawn"),
+        initializer=init_worker,
+        initargs=(str(model_path), nice, os.getpid()),
+    )
+    try:
+        seen: set[int] = set()
+        deadline = time.monotonic() + timeout_s
+        while len(seen) < workers:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                raise TimeoutError(f"{len(seen)} of {workers} FRT worker processes started")
+            pings = [pool.submit(_ping, 0.05) for _ in range(workers)]
+            seen.update(p.result(timeout=remaining) for p in pings)
+    except BaseException:
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    return pool

@@ -36,7 +36,7 @@ from shapely.geometry.base import BaseGeometry
 
 from models.contract import BOUND_COLUMNS, COL, N_INPUTS
 from models.dynamics import wrap_angle
-from models.outer_bound import OuterBound, half_plane_polygons, outer_bound
+from models.outer_bound import OuterBound, box_scale, half_plane_polygons, outer_bound
 from service.model_runtime import ValueModel
 
 #: Slice spacing when the distilled projection network is present (its level is calibrated on the
@@ -257,6 +257,10 @@ CORNER_CHORD = 0.3
 #: radius: about 9 cm).
 OUTER_WINDOW_S = 0.1
 
+#: An instant whose outer polygon holds fewer lattice nodes than this is not resolved by the grid
+#: (a small early set on a lattice sized for the late, large ones): its outer polygon stands for K.
+MIN_NODES_INSIDE = 16
+
 #: Stands for "+inf" in a contoured field (contourpy needs finite values).
 _FAR = 1.0e6
 
@@ -319,6 +323,7 @@ class FieldTubeSet(FRTSet):
         bound: OuterBound,
         bound_rows: list[int],
         outer: BoxTubeSet,
+        coarse: np.ndarray | None = None,
     ) -> None:
         super().__init__(pose, slice_dt, horizon_s, len(instant), conservative=False)
         self.lattice = lattice
@@ -327,6 +332,9 @@ class FieldTubeSet(FRTSet):
         self.bound = bound
         self.bound_rows = bound_rows
         self.outer = outer
+        #: Instants whose outer polygon holds fewer than MIN_NODES_INSIDE lattice nodes: the grid
+        #: cannot resolve K there, so the outer polygon stands for it.
+        self.coarse = np.zeros(len(instant), dtype=bool) if coarse is None else coarse
         self._tubes: dict[int, BaseGeometry] = {}
         self._slices: dict[int, BaseGeometry] = {}
         self._lock = threading.Lock()
@@ -346,9 +354,25 @@ class FieldTubeSet(FRTSet):
             # outer polygons (exact geometry, not sampled) takes the excess back along their edges.
             k_set = k_set.buffer(CORNER_CHORD * self.lattice.step, quad_segs=4)
             k_set = k_set.intersection(self.outer_tube(j))
+        unresolved = self._unresolved_sweeps(j)
+        if unresolved:
+            corners = half_plane_polygons(
+                self.bound.directions, self.bound.sweep_support[unresolved]
+            )
+            hull = shapely.MultiPoint(np.concatenate(corners)).convex_hull
+            k_set = shapely.union(k_set, hull.intersection(self.outer_tube(j)))
         with self._lock:
             self._tubes[j] = k_set
         return k_set
+
+    def _unresolved_sweeps(self, j: int) -> list[int]:
+        """Outer-bound sweeps of the intervals up to s_j that touch an unresolved instant."""
+        k = self.bound_rows[1] - self.bound_rows[0] if len(self.bound_rows) > 1 else 1
+        out: list[int] = []
+        for i in range(1, j + 1):
+            if self.coarse[i] or self.coarse[i - 1]:
+                out.extend(range(self.bound_rows[i] - k, self.bound_rows[i]))
+        return out
 
     def outer_tube(self, j: int) -> BaseGeometry:
         """A union of outer polygons that contains every position reached during [0, s_j]: one
@@ -368,9 +392,9 @@ class FieldTubeSet(FRTSet):
         if cached is not None:
             return cached
         k_set = self._grow(self.instant[j].contour(self.lattice))
-        if not k_set.is_empty and j > 0:
-            corners = self.bound.polygons_at([self.bound_rows[j]])[0]
-            k_set = k_set.intersection(shapely.Polygon(corners))
+        if j > 0 and (self.coarse[j] or not k_set.is_empty):
+            polygon = shapely.Polygon(self.bound.polygons_at([self.bound_rows[j]])[0])
+            k_set = polygon if self.coarse[j] else k_set.intersection(polygon)
         with self._lock:
             self._slices[j] = k_set
         return k_set
@@ -439,8 +463,13 @@ class FRTEngine:
         self.outer_steps = (self.n_slices - 1) * self.outer_steps_per_slice
         stencil = self.card.raw.get("projection") or {}
         self.level = float(stencil.get("delta", self.card.delta))
+        #: If set, the level at an instant is this times the outer box's scale (``box_scale``).
+        self.level_per_scale: float | None = None
         if self.use_projection:
-            self.level = float(self.card.raw["projection_graph"]["delta"])
+            listed = self.card.raw["projection_graph"]
+            self.level = float(listed["delta"])
+            if listed.get("level_per_scale") is not None:
+                self.level_per_scale = float(listed["level_per_scale"])
         self.max_nodes = max_nodes or 6000
         self.radius_m = float(self.card.initial_set.get("radius_m", 0.5))
 
@@ -599,12 +628,13 @@ class FRTEngine:
             interval_clips.append(interval_clip.reshape(gx.shape).astype(np.float32))
             inside.append(clip <= 0 if j > 0 else np.zeros(clip.shape, dtype=bool))
         values, evaluations = self._values_inside(windows, inside, v_start, bounds, ob)
+        levels = self.levels(ob, rows)
         instant, grown = [], []
         for j, ((k0, i0, _, _), clip, mask, w) in enumerate(
             zip(windows, clips, inside, values, strict=True)
         ):
             field_values = clip.copy()
-            field_values[mask] = np.maximum(w - self.level, clip[mask])
+            field_values[mask] = np.maximum(w - levels[j], clip[mask])
             instant.append(SliceField(k0, i0, field_values))
             speed = ob.sweep_speed_max[list(spans[j])].max() if j > 0 else 0.0
             # Grid dilation by how far a car moves in half a slice, plus one node step for the
@@ -626,10 +656,17 @@ class FRTEngine:
             ob,
             rows,
             self._box_tube(pose, ob),
+            coarse=np.array([int((c <= 0).sum()) < MIN_NODES_INSIDE for c in clips]),
         )
         frt.evaluations = evaluations
         frt.tube(self.n_slices - 1)
         return frt
+
+    def levels(self, ob: OuterBound, rows: list[int]) -> np.ndarray:
+        """The calibrated level of W (or V) at each instant ``ob.times[rows]``."""
+        if self.level_per_scale is None:
+            return np.full(len(rows), self.level)
+        return self.level_per_scale * box_scale(ob.box_at[rows])
 
     def _values_inside(
         self,

@@ -63,3 +63,26 @@ def test_runtime_graph_agrees_with_the_contract_graph(model, states) -> None:
     fast = ValueModel.load(MODEL)
     x = states["reachable"]
     assert np.max(np.abs(fast.evaluate(x) - model.evaluate(x))) <= 1e-3
+
+
+def test_served_slices_contain_the_reachable_positions(states) -> None:
+    """The engine's K at each fixture state's instant (the distilled projection, its level scaled by
+    the outer box, cut to the outer polygon) holds that state's position: the calibration the
+    service relies on, checked against rollouts it never saw."""
+    from service.engine import FRTEngine, Pose
+
+    engine = FRTEngine(ValueModel.load(MODEL))
+    assert engine.use_projection and engine.level_per_scale is not None
+    rows = states["reachable"]
+    missed = []
+    for name in np.unique(states["setting"]):
+        mine = rows[states["setting"] == name]
+        params = mine[0, 5:]
+        frt = engine.exact(Pose(0.0, 0.0, 0.0), float(params[0]), params[1:])
+        xy = mine[:, 1:3].astype(float)
+        t = mine[:, 0].astype(float)
+        # The tube up to each state's time must contain its position (distance 0 = on the edge).
+        outside = frt.clearance(xy, t) > 1e-6
+        if outside.any():
+            missed.append(f"{name}: {int(outside.sum())} of {len(mine)}")
+    assert not missed, missed

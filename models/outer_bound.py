@@ -82,6 +82,14 @@ def half_plane_polygon(directions: np.ndarray, support: np.ndarray) -> np.ndarra
     return half_plane_polygons(directions, support[None, :])[0]
 
 
+def box_scale(box: np.ndarray) -> np.ndarray:
+    """Size of a reachable set for calibration: sqrt of the area of its outer box(es) [..., 4]
+    (x_lo, x_hi, y_lo, y_hi). The distilled projection's errors grow with the set; its level is
+    calibrated per unit of this scale (models/projection.py) and applied so by the engine."""
+    box = np.asarray(box, dtype=float)
+    return np.sqrt((box[..., 1] - box[..., 0]) * (box[..., 3] - box[..., 2]))
+
+
 def _stop_rule_integral(v0: float, increments: np.ndarray) -> np.ndarray:
     """v[i+1] = max(v[i] + increments[i], 0), vectorised (Lindley's recursion):
     v[n] = S[n] - min(-v0, min_{k<=n} S[k]) with S the cumulative sum of the increments."""

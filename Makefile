@@ -10,7 +10,7 @@ DURATION ?= 60
 MODEL ?= models/frt_unicycle.onnx
 FIND_LINKS := $(if $(wildcard /opt/wheels),--find-links /opt/wheels,)
 
-.PHONY: venv serve test lint format train train-smoke evaluate evaluate-full bench load scale-test scenarios plots clean
+.PHONY: venv serve test lint format train train-smoke evaluate evaluate-full compare-authors bench load scale-test scenarios plots clean
 
 $(STAMP): pyproject.toml client/pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -56,6 +56,10 @@ evaluate-full: $(STAMP)
 		--plot docs/frt_contours.png --json results/model_eval.json
 	$(BIN)/python scripts/plot_training.py models/training_log.csv --out docs/training_loss.png
 	$(BIN)/python scripts/model_report.py
+
+# The paper authors' network (../shared/anchors, reference only) on the same rollouts as ours.
+compare-authors: $(STAMP)
+	$(BIN)/python scripts/compare_authors.py
 
 bench: $(STAMP)
 	$(BIN)/python scripts/bench.py --model $(MODEL)

@@ -356,10 +356,9 @@ class FieldTubeSet(FRTSet):
             k_set = k_set.intersection(self.outer_tube(j))
         unresolved = self._unresolved_sweeps(j)
         if unresolved:
-            corners = half_plane_polygons(
-                self.bound.directions, self.bound.sweep_support[unresolved]
-            )
-            hull = shapely.MultiPoint(np.concatenate(corners)).convex_hull
+            # The polygon of the support functions' maximum over those sweeps contains their hull.
+            support = self.bound.sweep_support[unresolved].max(axis=0)
+            hull = shapely.Polygon(half_plane_polygons(self.bound.directions, support[None])[0])
             k_set = shapely.union(k_set, hull.intersection(self.outer_tube(j)))
         with self._lock:
             self._tubes[j] = k_set
@@ -614,8 +613,9 @@ class FRTEngine:
             k1 = min(math.ceil((region[:, 3].max() - lattice.y0) / step) + 2, lattice.ny)
             gx, gy = np.meshgrid(lattice.xs(i0, i1), lattice.ys(k0, k1))
             projections = np.stack([gx.ravel(), gy.ravel()], axis=1) @ normals  # [N, M]
+            # One polygon for the interval: the support functions' maximum over its sweeps.
             interval_clip = (
-                np.min([(projections - ob.sweep_support[i]).max(axis=1) for i in before[j]], axis=0)
+                (projections - ob.sweep_support[list(before[j])].max(axis=0)).max(axis=1)
                 if j > 0
                 else np.full(gx.size, _FAR)
             )

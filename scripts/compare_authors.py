@@ -34,7 +34,7 @@ from shapely.geometry import Polygon
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from models.contract import COL, N_INPUTS  # noqa: E402
+from models.contract import BOUND_COLUMNS, COL, N_INPUTS  # noqa: E402
 from models.eval_settings import SETTINGS  # noqa: E402
 from models.evaluate import TUBE_TIMES, simulate  # noqa: E402
 from models.outer_bound import outer_bound  # noqa: E402
@@ -128,22 +128,7 @@ def main() -> None:
         if max(abs(v) for v in u1) > U1_RANGE:
             continue
         bounds = setting.bounds()
-        named = dict(
-            zip(
-                (
-                    "u1_min_start",
-                    "u2_min_start",
-                    "u1_min_end",
-                    "u2_min_end",
-                    "u1_max_start",
-                    "u2_max_start",
-                    "u1_max_end",
-                    "u2_max_end",
-                ),
-                bounds,
-                strict=True,
-            )
-        )
+        named = dict(zip(BOUND_COLUMNS, bounds, strict=True))
         roll = simulate(setting.v_start, bounds, args.rollouts, rng)
         ob = outer_bound(setting.v_start, bounds)
         for t in TUBE_TIMES:

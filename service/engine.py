@@ -347,19 +347,20 @@ class FieldTubeSet(FRTSet):
             cached = self._tubes.get(j)
         if cached is not None:
             return cached
+        outer = self.outer_tube(j)
         k_set = running_minimum(self.sweep[: j + 1]).contour(self.lattice)
         if not k_set.is_empty:
             # The grid dilation already covers the node sampling; this covers the chords that
             # linear interpolation draws across the outer polygons' corners, and the cut to the
             # outer polygons (exact geometry, not sampled) takes the excess back along their edges.
             k_set = k_set.buffer(CORNER_CHORD * self.lattice.step, quad_segs=4)
-            k_set = k_set.intersection(self.outer_tube(j))
+            k_set = k_set.intersection(outer)
         unresolved = self._unresolved_sweeps(j)
         if unresolved:
             # The polygon of the support functions' maximum over those sweeps contains their hull.
             support = self.bound.sweep_support[unresolved].max(axis=0)
             hull = shapely.Polygon(half_plane_polygons(self.bound.directions, support[None])[0])
-            k_set = shapely.union(k_set, hull.intersection(self.outer_tube(j)))
+            k_set = shapely.union(k_set, hull.intersection(outer))
         with self._lock:
             self._tubes[j] = k_set
         return k_set

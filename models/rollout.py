@@ -3,6 +3,11 @@
 Written once over an array namespace (numpy for evaluation, torch for training supervision).
 Controls switch a few times between the interpolated bounds: u(tau) = lo(tau) + alpha(tau) (hi - lo)
 with alpha piecewise constant in [0, 1]; alpha in {0, 1} drives the boundary, random alpha the inside.
+A phase may instead hold the control at the admissible value nearest zero (``ZERO_SEEKING``): the
+singular arc of Pontryagin's principle for this system. For d . p(t) to be maximal, u2 is bang-bang
+and u1 is bang-bang except on arcs where lambda_theta = 0, i.e. heading aligned with d, u1 = 0. So
+the front of the reachable set is swept by "turn hard, then drive straight" schedules, which random
+switching between the bounds almost never produces (``sample_extremal_schedules``).
 """
 
 from __future__ import annotations
@@ -15,6 +20,9 @@ from models.contract import HORIZON_S, INITIAL_SET, InitialSet
 from models.dynamics import interpolate_bounds, unicycle_derivative
 
 Array = Any
+
+#: Phase value meaning "hold the control at the admissible value nearest 0" (clip(0, lo, hi)).
+ZERO_SEEKING = -1.0
 
 
 def switching_control(alpha: Array, switch_times: Array, tau: Array) -> Array:
@@ -54,7 +62,7 @@ def rk4_rollout(
         u1_lo, u2_lo, u1_hi, u2_hi = interpolate_bounds(params, tau, horizon)
         a1 = switching_control(alpha1, switch_times, tau)
         a2 = switching_control(alpha2, switch_times, tau)
-        return u1_lo + a1 * (u1_hi - u1_lo), u2_lo + a2 * (u2_hi - u2_lo)
+        return _control(u1_lo, u1_hi, a1, xp), _control(u2_lo, u2_hi, a2, xp)
 
     tau = t_end * 0.0
     for _ in range(steps):
@@ -74,19 +82,33 @@ def rk4_rollout(
     return (px, py, th, v), trace
 
 
+def _control(lo: Array, hi: Array, alpha: Array, xp: Any) -> Array:
+    """lo + alpha (hi - lo), or clip(0, lo, hi) where alpha is ``ZERO_SEEKING``."""
+    nearest_zero = xp.minimum(xp.maximum(lo * 0.0, lo), hi)
+    return xp.where(alpha < 0, nearest_zero, lo + alpha * (hi - lo))
+
+
 def sample_initial_states(
     v_start: np.ndarray,
     rng: np.random.Generator,
     initial_set: InitialSet = INITIAL_SET,
     spread: float = 1.0,
+    on_boundary: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """States spread over the initial set (``spread`` > 1 reaches outside it), numpy."""
+    """States spread over the initial set (``spread`` > 1 reaches outside it), numpy.
+
+    A share ``on_boundary`` of them sits on its edge (position on the disc's rim, heading and speed
+    at their margins), where the extreme trajectories start.
+    """
     n = v_start.shape[0]
     m = initial_set
-    radius = m.radius_m * spread * np.sqrt(rng.uniform(0, 1, n))
+    edge = rng.uniform(0, 1, n) < on_boundary
+    radius = m.radius_m * spread * np.where(edge, 1.0, np.sqrt(rng.uniform(0, 1, n)))
     angle = rng.uniform(-np.pi, np.pi, n)
-    heading = m.heading_margin_rad * spread * rng.uniform(-1, 1, n)
-    speed = np.clip(v_start + m.speed_margin_mps * spread * rng.uniform(-1, 1, n), 0.0, None)
+    heading_unit = np.where(edge, rng.choice([-1.0, 1.0], n), rng.uniform(-1, 1, n))
+    speed_unit = np.where(edge, rng.choice([-1.0, 1.0], n), rng.uniform(-1, 1, n))
+    heading = m.heading_margin_rad * spread * heading_unit
+    speed = np.clip(v_start + m.speed_margin_mps * spread * speed_unit, 0.0, None)
     return radius * np.cos(angle), radius * np.sin(angle), heading, speed
 
 
@@ -104,3 +126,43 @@ def sample_control_schedules(
     alpha1[straight] = 0.5
     switch_times = np.sort(rng.uniform(0, horizon, (n, switches)), axis=1)
     return alpha1, alpha2, switch_times
+
+
+#: Share of extremal schedules that sweep the outer front (turn, then straight).
+FRONT_SHARE = 0.5
+
+
+def sample_extremal_schedules(
+    n: int, horizon: float, rng: np.random.Generator, switches: int = 3
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pontryagin-shaped schedules: u1 per phase at a bound or zero-seeking (turn, drive straight,
+    turn again), u2 per phase at a bound (mostly) or zero-seeking. Half of the rows draw their
+    switch times skewed early, where short hard turns set the heading of a long straight run;
+    ``FRONT_SHARE`` of them are the one-parameter family that sweeps the outer front."""
+    alpha1 = rng.choice([0.0, 1.0, ZERO_SEEKING], size=(n, switches + 1))
+    alpha2 = rng.choice([0.0, 1.0, ZERO_SEEKING], size=(n, switches + 1), p=[0.4, 0.4, 0.2])
+    unit = rng.uniform(0, 1, (n, switches))
+    early = rng.uniform(0, 1, n) < 0.5
+    unit[early] = unit[early] ** 2
+    switch_times = np.sort(unit * horizon, axis=1)
+    # The outer front itself: one hard turn, then straight, at full throttle (or full brake), the
+    # turn's length uniform so that the front is swept evenly.
+    kind = rng.uniform(0, 1, n)
+    front = kind < FRONT_SHARE
+    alpha1[front, 0] = rng.integers(0, 2, int(front.sum()))
+    alpha1[front, 1:] = ZERO_SEEKING
+    alpha2[front] = (kind[front] < 0.75 * FRONT_SHARE)[:, None] * 1.0
+    switch_times[front, 0] = rng.uniform(0, horizon, int(front.sum()))
+    switch_times[front, 1:] = horizon
+    return alpha1, alpha2, switch_times
+
+
+def sample_reference_schedules(
+    n: int, horizon: float, rng: np.random.Generator, extremal_share: float = 0.6
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The evaluation's mix: extremal schedules for the boundary, the switching/straight/random mix
+    of ``sample_control_schedules`` for the inside."""
+    k = round(n * extremal_share)
+    ext = sample_extremal_schedules(k, horizon, rng)
+    mix = sample_control_schedules(n - k, horizon, rng)
+    return tuple(np.concatenate([a, b]) for a, b in zip(ext, mix, strict=True))  # type: ignore[return-value]

@@ -9,7 +9,12 @@ import shapely
 from models.contract import COL, HORIZON_S, N_INPUTS
 from models.eval_settings import SETTINGS
 from models.outer_bound import cos_range, outer_bound
-from models.rollout import rk4_rollout, sample_control_schedules, sample_initial_states
+from models.rollout import (
+    rk4_rollout,
+    sample_control_schedules,
+    sample_initial_states,
+    sample_reference_schedules,
+)
 from models.sampling import sample_parameters
 
 
@@ -23,8 +28,10 @@ def test_cos_range_is_exact_on_dense_samples() -> None:
     np.testing.assert_allclose(c_hi, dense.max(axis=0), atol=1e-6)
 
 
-@pytest.mark.parametrize("seed", [0, 1])
-def test_rollouts_stay_inside_the_outer_bound(seed: int) -> None:
+@pytest.mark.parametrize(
+    ("seed", "schedules"), [(0, sample_control_schedules), (1, sample_reference_schedules)]
+)
+def test_rollouts_stay_inside_the_outer_bound(seed: int, schedules) -> None:
     rng = np.random.default_rng(seed)
     settings = [(s.v_start, s.bounds()) for s in SETTINGS[::3]]
     settings += [(float(p[COL["v_start"]]), p[6:]) for p in sample_parameters(6, rng)]
@@ -34,8 +41,8 @@ def test_rollouts_stay_inside_the_outer_bound(seed: int) -> None:
         params = np.zeros((n, N_INPUTS))
         params[:, 6:] = bounds
         params[:, COL["v_start"]] = v_start
-        start = sample_initial_states(params[:, COL["v_start"]], rng)
-        a1, a2, sw = sample_control_schedules(n, HORIZON_S, rng)
+        start = sample_initial_states(params[:, COL["v_start"]], rng, on_boundary=0.5)
+        a1, a2, sw = schedules(n, HORIZON_S, rng)
         _, trace = rk4_rollout(start, params, np.full(n, HORIZON_S), a1, a2, sw, 150, record=True)
         for tau, (px, py, _heading, v) in trace[::5]:
             t = float(tau[0])

@@ -37,6 +37,14 @@ from shapely.geometry.base import BaseGeometry
 from models.contract import BOUND_COLUMNS, COL, N_INPUTS
 from models.dynamics import wrap_angle
 from models.outer_bound import OuterBound, box_scale, half_plane_polygons, outer_bound
+from service.field_stack import (
+    FAR,
+    WindowStack,
+    block_reduce,
+    convex_polygons,
+    dilate_discs,
+    span_reduce,
+)
 from service.model_runtime import ValueModel
 
 #: Slice spacing when the distilled projection network is present (its level is calibrated on the
@@ -262,7 +270,7 @@ OUTER_WINDOW_S = 0.1
 MIN_NODES_INSIDE = 16
 
 #: Stands for "+inf" in a contoured field (contourpy needs finite values).
-_FAR = 1.0e6
+_FAR = FAR
 
 
 def running_minimum(fields: list[SliceField]) -> SliceField:
@@ -277,22 +285,6 @@ def running_minimum(fields: list[SliceField]) -> SliceField:
         window = out[f.k0 - k0 : f.k0 - k0 + ny, f.i0 - i0 : f.i0 - i0 + nx]
         np.minimum(window, f.values, out=window)
     return SliceField(k0, i0, out)
-
-
-def minimum_filter_disc(values: np.ndarray, radius_nodes: float) -> np.ndarray:
-    """min of ``values`` over the nodes within ``radius_nodes`` (Euclidean) of each node; nodes
-    beyond the array count as +inf. On a field whose zero sublevel set is a set K, the result's
-    zero sublevel set is K grown by that radius (grid dilation)."""
-    r = math.floor(radius_nodes)
-    ny, nx = values.shape
-    padded = np.full((ny + 2 * r, nx + 2 * r), _FAR, dtype=values.dtype)
-    padded[r : r + ny, r : r + nx] = values
-    out = values.copy()
-    for dk in range(-r, r + 1):
-        for di in range(-r, r + 1):
-            if (dk or di) and dk * dk + di * di <= radius_nodes * radius_nodes:
-                np.minimum(out, padded[r + dk : r + dk + ny, r + di : r + di + nx], out=out)
-    return out
 
 
 class FieldTubeSet(FRTSet):
@@ -383,7 +375,7 @@ class FieldTubeSet(FRTSet):
         chunk = max(round(OUTER_WINDOW_S / float(self.bound.times[1] - self.bound.times[0])), 1)
         support = self.bound.sweep_support
         windows = np.stack([support[a : min(a + chunk, n)].max(axis=0) for a in range(0, n, chunk)])
-        polygons = shapely.polygons(half_plane_polygons(self.bound.directions, windows))
+        polygons = convex_polygons(self.bound.directions, windows)
         return shapely.union_all(polygons)
 
     def slice(self, j: int) -> BaseGeometry:
@@ -582,16 +574,14 @@ class FRTEngine:
 
     def exact(self, pose: Pose, v_start: float, bounds: np.ndarray) -> FieldTubeSet:
         """The model's set {W <= level} ∩ outer bound, sampled per slice (see FieldTubeSet); the
-        whole tube is built at once (collision checks need it first), the rest on demand."""
+        whole tube is built at once (collision checks need it first), the rest on demand.
+
+        Every instant's fields are computed together on windows padded to one shape
+        (``service.field_stack``)."""
         bounds = np.asarray(bounds, dtype=np.float32)
         ob = self.outer(v_start, bounds)
         k = self.outer_steps_per_slice
-        n_sweeps = len(ob.sweep)
         rows = [j * k for j in range(self.n_slices)]
-        # Sweeps of [s_(j-1), s_j] (``before``) and the window of slice j, which spans
-        # [s_(j-1), s_(j+1)] so that both neighbours' intervals fit in it.
-        before = [range(max(r - k, 0), r) for r in rows]
-        spans = [range(max(r - k, 0), min(r + k, n_sweeps)) for r in rows]
         box_at = ob.box_at[rows[1:]]
         # The node budget is spread over the slices' areas (an ellipse in each outer box).
         areas = (box_at[:, 1] - box_at[:, 0]) * (box_at[:, 3] - box_at[:, 2]) * (math.pi / 4)
@@ -603,50 +593,64 @@ class FRTEngine:
             nx=math.ceil((ob.sweep[:, 1].max() - ob.sweep[:, 0].min()) / step) + 17,
             ny=math.ceil((ob.sweep[:, 3].max() - ob.sweep[:, 2].min()) / step) + 17,
         )
-        normals = np.stack([np.cos(ob.directions), np.sin(ob.directions)], axis=1).T
+        # Slice j's window spans the sweeps of [s_(j-1), s_(j+1)] (both neighbours' intervals fit
+        # in it); its interval polygon is the support functions' maximum over [s_(j-1), s_j].
+        lo = np.stack(
+            [
+                span_reduce(block_reduce(ob.sweep[:, 0], k, np.minimum), np.minimum),
+                span_reduce(block_reduce(ob.sweep[:, 2], k, np.minimum), np.minimum),
+            ],
+            axis=1,
+        )
+        hi = np.stack(
+            [
+                span_reduce(block_reduce(ob.sweep[:, 1], k, np.maximum), np.maximum),
+                span_reduce(block_reduce(ob.sweep[:, 3], k, np.maximum), np.maximum),
+            ],
+            axis=1,
+        )
+        windows = WindowStack.make(lo, hi, (lattice.x0, lattice.y0), step, (lattice.nx, lattice.ny))
+        valid = windows.valid()
+        interval_supports = block_reduce(ob.sweep_support, k, np.maximum)
+        clip, interval64 = windows.polygon_fields(
+            ob.directions,
+            [ob.support_at[rows], np.concatenate([interval_supports[:1], interval_supports])],
+            valid,
+        )
+        clip[0] = np.hypot(windows.xs[0][None, :], windows.ys[0][:, None]) - self.radius_m
+        interval = interval64.astype(np.float32)
+        interval[0] = _FAR
+        inside = (clip <= 0) & valid
+        inside[0] = False
+        clip32 = clip.astype(np.float32)
+        coarse = ((clip32 <= 0) & valid).sum(axis=(1, 2)) < MIN_NODES_INSIDE
 
-        windows, clips, interval_clips, inside = [], [], [], []
-        for j, span in enumerate(spans):
-            region = ob.sweep[list(span)]
-            i0 = max(math.floor((region[:, 0].min() - lattice.x0) / step) - 1, 0)
-            i1 = min(math.ceil((region[:, 1].max() - lattice.x0) / step) + 2, lattice.nx)
-            k0 = max(math.floor((region[:, 2].min() - lattice.y0) / step) - 1, 0)
-            k1 = min(math.ceil((region[:, 3].max() - lattice.y0) / step) + 2, lattice.ny)
-            gx, gy = np.meshgrid(lattice.xs(i0, i1), lattice.ys(k0, k1))
-            projections = np.stack([gx.ravel(), gy.ravel()], axis=1) @ normals  # [N, M]
-            # One polygon for the interval: the support functions' maximum over its sweeps.
-            interval_clip = (
-                (projections - ob.sweep_support[list(before[j])].max(axis=0)).max(axis=1)
-                if j > 0
-                else np.full(gx.size, _FAR)
-            )
-            if j == 0:
-                clip = np.hypot(gx, gy) - self.radius_m
-            else:
-                clip = (projections - ob.support_at[rows[j]]).max(axis=1).reshape(gx.shape)
-            windows.append((k0, i0, gx, gy))
-            clips.append(clip.astype(np.float32))
-            interval_clips.append(interval_clip.reshape(gx.shape).astype(np.float32))
-            inside.append(clip <= 0 if j > 0 else np.zeros(clip.shape, dtype=bool))
         values, evaluations = self._values_inside(windows, inside, v_start, bounds, ob)
         levels = self.levels(ob, rows)
-        instant, grown = [], []
-        for j, ((k0, i0, _, _), clip, mask, w) in enumerate(
-            zip(windows, clips, inside, values, strict=True)
-        ):
-            field_values = clip.copy()
-            field_values[mask] = np.maximum(w - levels[j], clip[mask])
-            instant.append(SliceField(k0, i0, field_values))
-            speed = ob.sweep_speed_max[list(spans[j])].max() if j > 0 else 0.0
-            # Grid dilation by how far a car moves in half a slice, plus one node step for the
-            # node sampling.
-            radius = float(speed) * self.slice_dt / 2 / step + 1.0
-            grown.append(SliceField(k0, i0, minimum_filter_disc(field_values, radius)))
-        sweep = [instant[0]]
+        field = clip32
+        at = np.nonzero(inside)
+        field[at] = np.maximum(values - levels[at[0]], field[at])
+        field[~valid] = _FAR
+        # Grid dilation by how far a car moves in half a slice, plus one node step for the node
+        # sampling.
+        speed = span_reduce(block_reduce(ob.sweep_speed_max, k, np.maximum), np.maximum)
+        speed[0] = 0.0
+        grown = dilate_discs(field, speed * self.slice_dt / 2 / step + 1.0)
+        grown[~valid] = _FAR
+        sweep_stack = np.empty_like(field)
+        sweep_stack[0] = field[0]
         for j in range(1, self.n_slices):
-            k0, i0, _, _ = windows[j]
-            near = np.minimum(grown[j].values, grown[j - 1].window(k0, i0, grown[j].values.shape))
-            sweep.append(SliceField(k0, i0, np.maximum(near, interval_clips[j])))
+            near = np.minimum(grown[j], windows.shifted(grown, j - 1, j))
+            np.maximum(near, interval[j], out=sweep_stack[j])
+        sweep_stack[~valid] = _FAR
+        instant = [
+            SliceField(int(windows.k0[j]), int(windows.i0[j]), windows.crop(field, j))
+            for j in range(self.n_slices)
+        ]
+        sweep = [
+            SliceField(int(windows.k0[j]), int(windows.i0[j]), windows.crop(sweep_stack, j))
+            for j in range(self.n_slices)
+        ]
         frt = FieldTubeSet(
             pose,
             self.slice_dt,
@@ -657,7 +661,7 @@ class FRTEngine:
             ob,
             rows,
             self._box_tube(pose, ob),
-            coarse=np.array([int((c <= 0).sum()) < MIN_NODES_INSIDE for c in clips]),
+            coarse=coarse,
         )
         frt.evaluations = evaluations
         frt.tube(self.n_slices - 1)
@@ -671,27 +675,23 @@ class FRTEngine:
 
     def _values_inside(
         self,
-        windows: list[tuple[int, int, np.ndarray, np.ndarray]],
-        inside: list[np.ndarray],
+        windows: WindowStack,
+        inside: np.ndarray,
         v_start: float,
         bounds: np.ndarray,
         ob: OuterBound,
-    ) -> tuple[list[np.ndarray], int]:
-        """W (or the stencil minimum of V) at the nodes inside each slice's outer polygon."""
-        times = [j * self.slice_dt for j in range(self.n_slices)]
-        counts = [int(m.sum()) for m in inside]
+    ) -> tuple[np.ndarray, int]:
+        """W (or the stencil minimum of V) at the nodes inside each slice's outer polygon
+        (``inside`` [J, H, W]), in the order of ``np.nonzero(inside)``."""
+        times = np.arange(self.n_slices) * self.slice_dt
+        jj, hh, ww = np.nonzero(inside)
+        px, py = windows.xs[jj, ww], windows.ys[jj, hh]
         if self.use_projection:  # one runtime call for every slice
-            px = np.concatenate([gx[m] for (_, _, gx, _), m in zip(windows, inside, strict=True)])
-            py = np.concatenate([gy[m] for (_, _, _, gy), m in zip(windows, inside, strict=True)])
-            t = np.repeat(np.array(times), counts)
-            flat, evaluations = self.projected_value(t, px, py, v_start, bounds)
-            return np.split(flat, np.cumsum(counts)[:-1]), evaluations
-        values, evaluations = [], 0
-        for (_, _, gx, gy), m, s in zip(windows, inside, times, strict=True):
-            if not m.any():
-                values.append(np.zeros(0, dtype=np.float32))
-                continue
-            v, n = self.stencil_min(s, gx[m], gy[m], v_start, bounds, ob)
-            values.append(v)
+            return self.projected_value(times[jj], px, py, v_start, bounds)
+        values, evaluations = np.zeros(len(jj), dtype=np.float32), 0
+        for j in np.unique(jj):
+            rows = jj == j
+            v, n = self.stencil_min(float(times[j]), px[rows], py[rows], v_start, bounds, ob)
+            values[rows] = v
             evaluations += n
         return values, evaluations

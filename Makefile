@@ -49,7 +49,7 @@ train-smoke: $(STAMP)
 	$(BIN)/python -m models.train --config models/configs/smoke.json --out /tmp/frt-smoke
 
 evaluate: $(STAMP)
-	$(BIN)/python -m models.evaluate --model $(MODEL) --rollouts 16384
+	$(BIN)/python -m models.evaluate --model $(MODEL) --rollouts 65536
 
 evaluate-full: $(STAMP)
 	$(BIN)/python -m models.evaluate --model $(MODEL) --rollouts 65536 --write-card \

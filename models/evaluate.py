@@ -336,7 +336,7 @@ def main() -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--model", type=Path, default=Path("models/frt_unicycle.onnx"))
-    parser.add_argument("--rollouts", type=int, default=16384)
+    parser.add_argument("--rollouts", type=int, default=65536)
     parser.add_argument("--seed", type=int, default=2026)
     parser.add_argument("--calibrate", action="store_true")
     parser.add_argument("--calibration-settings", type=int, default=1000)

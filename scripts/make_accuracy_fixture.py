@@ -1,6 +1,7 @@
 """Write tests/fixtures/accuracy_states.npz: seeded ground-truth states for the model accuracy test.
 
-Reachable states come from rollouts of the true dynamics (models/rollout.py); unreachable ones lie
+Reachable states come from rollouts of the true dynamics under the evaluation's schedules, extremal
+ones included (models/rollout.py, ``sample_reference_schedules``); unreachable ones lie
 at least 1 m outside the interval outer bound (models/outer_bound.py). Neither uses the network.
 """
 
@@ -13,7 +14,7 @@ import numpy as np
 from models.contract import COL, HORIZON_S, N_INPUTS
 from models.eval_settings import SETTINGS
 from models.outer_bound import outer_bound
-from models.rollout import rk4_rollout, sample_control_schedules, sample_initial_states
+from models.rollout import rk4_rollout, sample_initial_states, sample_reference_schedules
 
 NAMES = (
     "stationary_narrow",
@@ -38,8 +39,8 @@ def main() -> None:
         params[:, COL["v_start"]] = setting.v_start
         params[:, 6:] = bounds
         t = rng.uniform(0.05, HORIZON_S, PER_SETTING)
-        start = sample_initial_states(params[:, COL["v_start"]], rng)
-        a1, a2, sw = sample_control_schedules(PER_SETTING, HORIZON_S, rng)
+        start = sample_initial_states(params[:, COL["v_start"]], rng, on_boundary=0.5)
+        a1, a2, sw = sample_reference_schedules(PER_SETTING, HORIZON_S, rng)
         end, _ = rk4_rollout(start, params, t, a1, a2, sw * (t / HORIZON_S)[:, None], 150)
         rows = params.copy()
         rows[:, COL["t"]] = t

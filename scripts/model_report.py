@@ -26,6 +26,8 @@ def render(card: dict) -> str:
         f"{acc['rollouts_per_setting']} rollouts per setting (RK4, dt = {acc['dt_s']} s), "
         f"cells of {acc['cell_m']} m, seed {acc['seed']}.",
         "",
+        f"Inner reference: {acc.get('reference', 'rollouts of the true dynamics')}.",
+        "",
         "Columns: share of sampled reachable states with V <= delta; share of rollout (x, y) cells "
         "inside the service's tube K(t); IoU of K(t) with the rollout cells; 95th percentile of how far "
         "K(t) reaches beyond the rollout cells; IoU of the interval outer bound alone (what the "

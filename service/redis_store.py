@@ -194,6 +194,13 @@ class RedisAgentStore:
         raw = await self._call(lambda: self._redis.get(self.key(agent_id)))
         return None if raw is None else decode_state(raw)
 
+    async def get_many(self, agent_ids: list[str]) -> list[AgentState | None]:
+        if not agent_ids:
+            return []
+        keys = [self.key(agent_id) for agent_id in agent_ids]
+        raws = await self._call(lambda: self._redis.mget(keys))
+        return [None if raw is None else decode_state(raw) for raw in raws]
+
     async def update(
         self, agent_id: str, fn: UpdateFn, *, timestamp: float | None = None
     ) -> AgentState:

@@ -60,11 +60,15 @@ class AgentState:
 _STATE_FIELDS = tuple(f.name for f in fields(AgentState))
 
 
+#: JSON leaves: immutable, shared by copies (checked inline, not by a call per number).
+_LEAVES = (float, int, str, bool, type(None))
+
+
 def _json_copy(value: Any) -> Any:
     if isinstance(value, list):
-        return [_json_copy(v) for v in value]
+        return [v if isinstance(v, _LEAVES) else _json_copy(v) for v in value]
     if isinstance(value, dict):
-        return {k: _json_copy(v) for k, v in value.items()}
+        return {k: v if isinstance(v, _LEAVES) else _json_copy(v) for k, v in value.items()}
     return value  # str, number, bool, None: immutable
 
 
@@ -83,6 +87,10 @@ class AgentStore(Protocol):
 
     async def get(self, agent_id: str) -> AgentState | None:
         """The agent's state, or ``None`` if unknown or expired."""
+        ...
+
+    async def get_many(self, agent_ids: list[str]) -> list[AgentState | None]:
+        """``get`` of each agent, in one round trip (a planner's check of many agents)."""
         ...
 
     async def update(
@@ -148,6 +156,12 @@ class InMemoryAgentStore:
             self._purge_expired()
             entry = self._entries.get(agent_id)
             return None if entry is None else AgentState.from_dict(entry.state.to_dict())
+
+    async def get_many(self, agent_ids: list[str]) -> list[AgentState | None]:
+        with self._lock:
+            self._purge_expired()
+            entries = [self._entries.get(agent_id) for agent_id in agent_ids]
+        return [None if e is None else AgentState.from_dict(e.state.to_dict()) for e in entries]
 
     async def update(
         self, agent_id: str, fn: UpdateFn, *, timestamp: float | None = None

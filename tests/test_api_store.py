@@ -101,6 +101,17 @@ def test_returned_states_are_copies() -> None:
     assert asyncio.run(store.get("a")).control_bounds[0] == -1.0  # type: ignore[union-attr]
 
 
+def test_get_many_reads_copies_in_the_order_asked() -> None:
+    store = InMemoryAgentStore(ttl_s=60, max_agents=10)
+    put(store, "a", 1.0)
+    put(store, "b", 2.0)
+    got = asyncio.run(store.get_many(["b", "unknown", "a"]))
+    assert [s.agent_id if s else None for s in got] == ["b", None, "a"]
+    assert got[0] == asyncio.run(store.get("b"))
+    got[0].prediction["mean"][0][0] = 42.0  # type: ignore[union-attr]
+    assert asyncio.run(store.get("b")).prediction["mean"][0][0] == 0.0  # type: ignore[union-attr]
+
+
 def test_ttl_expires_agents_and_updates_refresh_it() -> None:
     clock = FakeClock()
     store = InMemoryAgentStore(ttl_s=10, max_agents=10, clock=clock)

@@ -210,6 +210,7 @@ def test_roundtrip_is_json_with_the_ttl(redis_server: RedisServer) -> None:
         assert written == state("car-1", 12.5, gamma=0.1)
         assert await store.get("car-1") == written
         assert await store.get("unknown") is None
+        assert await store.get_many(["unknown", "car-1"]) == [None, written]
         key = store.key("car-1")
         await store.close()
         raw = redis.Redis.from_url(redis_server.url)

@@ -16,7 +16,6 @@ from functools import lru_cache
 from typing import Any
 
 import numpy as np
-from starlette.concurrency import run_in_threadpool
 
 from service.agents import effective_config
 from service.confidence import Belief
@@ -101,23 +100,27 @@ async def answer_states(
     # Keep time to answer every agent once the wait is over: a planner's check of 50 agents takes
     # milliseconds to answer, which a wait up to half the deadline would push past it.
     budget = wait_budget_s(arrival, deadline_ms, settings) - services.answer_time_s(len(states))
-    exact = await asyncio.gather(
-        *(services.exact_within(job, budget, wait_if_queued=False) for job in jobs)
-    )
+    # Cached sets first, without a task each (a planner's check of 50 agents mostly finds them).
+    exact = [services.cached_exact(job) for job in jobs]
+    late = [i for i, frt in enumerate(exact) if frt is None]
+    if late:
+        waited = await asyncio.gather(
+            *(services.exact_within(jobs[i], budget, wait_if_queued=False) for i in late)
+        )
+        for i, frt in zip(late, waited, strict=True):
+            exact[i] = frt
 
     xy = np.array([[p.x, p.y] for p in request.trajectory], dtype=np.float64)
     times = np.array([p.t for p in request.trajectory], dtype=np.float64)
 
-    def compute() -> list[CollisionCheckResponse]:
-        start = time.perf_counter()
-        results = [
-            _respond(services, state, job, frt, request, xy, times)
-            for state, job, frt in zip(states, jobs, exact, strict=True)
-        ]
-        services.record_answer_time(time.perf_counter() - start, len(states))
-        return results
-
-    results = await run_in_threadpool(compute)
+    # Answered on the event loop: ~0.1 ms per agent, less than the thread hop and the GIL hand-offs
+    # with the loop that answering in a worker thread cost.
+    start = time.perf_counter()
+    results = [
+        _respond(services, state, job, frt, request, xy, times)
+        for state, job, frt in zip(states, jobs, exact, strict=True)
+    ]
+    services.record_answer_time(time.perf_counter() - start, len(states))
     if time.perf_counter() - arrival > deadline_ms / 1000.0:
         services.metrics.deadline_misses.inc()
     return results
@@ -183,8 +186,7 @@ async def check_agents_at_once(
         ids = list(dict.fromkeys(request.agent_ids))  # drop repeats, keep the order
         check_agents("agent_ids", ids, settings)
     states, missing = [], []
-    for agent_id in ids:
-        state = await services.store.get(agent_id)
+    for agent_id, state in zip(ids, await services.store.get_many(ids), strict=True):
         if state is None:
             missing.append(agent_id)
         else:

@@ -86,14 +86,15 @@ def to_world_frame(geometry: BaseGeometry, pose: Pose) -> BaseGeometry:
 
 
 def signed_distance(geometry: BaseGeometry, xy: np.ndarray) -> np.ndarray:
-    """Distance from each point to ``geometry``; negative inside (minus the depth)."""
+    """Distance from each point to ``geometry``; negative inside (minus the depth).
+
+    Outside a polygon the distance to it is the distance to its boundary, so one distance call
+    serves both sides."""
     if geometry.is_empty:
         return np.full(len(xy), np.inf)
-    points = shapely.points(xy)
     inside = shapely.contains_xy(geometry, xy[:, 0], xy[:, 1])
-    outside_distance = shapely.distance(geometry, points)
-    depth = shapely.distance(geometry.boundary, points)
-    return np.where(inside, -depth, outside_distance)
+    distance = shapely.distance(geometry.boundary, shapely.points(xy))
+    return np.where(inside, -distance, distance)
 
 
 class FRTSet:

@@ -1,17 +1,19 @@
 """Exact FRTs in worker processes: one engine per process, results sent back by pickle.
 
-The event loop shares the GIL with any thread in its process, so an exact set (~17 ms of numpy,
+The event loop shares the GIL with any thread in its process, so an exact set (~13 ms of numpy,
 onnxruntime and Python) computed in a thread slows every request answered meanwhile. Here each
 worker process loads the model once (:func:`init_worker`, from the same model path as the server)
-and runs :class:`ExactTask`\\ s; the result, a :class:`~service.engine.FieldTubeSet` with its eagerly
-built whole tube and the small arrays its slices are drawn from later, comes back by pickle between
-our own processes (trusted IPC). Its lock does not pickle: :func:`_reduce_frt_set` drops it and
-:func:`_rebuild_frt_set` makes a fresh one.
+and runs :class:`ExactTask`\\ s; the result, a :class:`~service.engine.FieldTubeSet` with its
+eagerly built whole tube and the small arrays its slices are drawn from later, comes back by pickle
+between our own processes (trusted IPC, :class:`~service.pipe_pool.PipePool`). Its lock does not pickle: :func:`_reduce_frt_set` drops it
+and :func:`_rebuild_frt_set` makes a fresh one. Conservative sets (:class:`ConservativeTask`, ~1 ms
+each, needed at once by checks that find the exact set late) have a pool of their own at the
+server's priority, so that they never queue behind exact sets and cost the event loop nothing.
 
-Workers run at a lower priority (``nice``) than the server, so that on a busy machine the event loop
-answers first and exact sets use what is left. A worker exits when its server does (even a killed
-one). If worker processes cannot be started, :func:`start_pool` says why and the caller keeps
-threads.
+Exact-set workers run at a lower priority (``nice``) than the server, so that on a busy machine the
+event loop answers first and exact sets use what is left. A worker exits when its server does (even
+a killed one). If worker processes cannot be started, :func:`start_pool` says why and the caller
+keeps threads.
 """
 
 from __future__ import annotations
@@ -19,11 +21,9 @@ from __future__ import annotations
 import contextlib
 import copyreg
 import logging
-import multiprocessing
 import os
 import threading
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -31,6 +31,8 @@ from typing import Any
 import numpy as np
 
 from service.engine import BoxTubeSet, FieldTubeSet, FRTEngine, FRTSet, Pose
+from service.memory import keep_freed_memory
+from service.pipe_pool import PipePool
 
 log = logging.getLogger("frt.exact_worker")
 
@@ -78,9 +80,24 @@ class ExactTask:
         return engine.exact(self.pose, self.v_start, self.bounds)
 
 
+@dataclass
+class ConservativeTask:
+    """``engine.conservative(pose, v_start, bounds)`` in a worker process (see :class:`ExactTask`)."""
+
+    pose: Pose
+    v_start: float
+    bounds: np.ndarray
+
+    def __call__(self) -> FRTSet:
+        if _engine is None:
+            raise RuntimeError("no engine in this process")
+        return _engine.conservative(self.pose, self.v_start, self.bounds)
+
+
 def init_worker(model_path: str, nice: int, parent_pid: int) -> None:
     """Process initializer: lower the priority, load the engine, warm it, watch the parent."""
     global _engine
+    keep_freed_memory()
     if nice:
         with contextlib.suppress(OSError):  # not permitted here: run at the server's priority
             os.nice(nice)
@@ -102,32 +119,12 @@ def _exit_with_parent(parent_pid: int) -> None:
             os._exit(0)
 
 
-def _ping(pause_s: float) -> int:
-    time.sleep(pause_s)  # long enough that one ready worker does not take every ping
-    return os.getpid()
-
-
-def start_pool(
-    model_path: Path, workers: int, nice: int, timeout_s: float = 120.0
-) -> ProcessPoolExecutor:
+def start_pool(model_path: Path, workers: int, nice: int, timeout_s: float = 120.0) -> PipePool:
     """A pool of ``workers`` processes, each with the engine loaded and warmed; raises if they cannot
     all be started within ``timeout_s``."""
-    pool = ProcessPoolExecutor(
+    return PipePool(
         workers,
-        mp_context=multiprocessing.get_context("spawn"),
         initializer=init_worker,
         initargs=(str(model_path), nice, os.getpid()),
+        timeout_s=timeout_s,
     )
-    try:
-        seen: set[int] = set()
-        deadline = time.monotonic() + timeout_s
-        while len(seen) < workers:
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
-                raise TimeoutError(f"{len(seen)} of {workers} FRT worker processes started")
-            pings = [pool.submit(_ping, 0.05) for _ in range(workers)]
-            seen.update(p.result(timeout=remaining) for p in pings)
-    except BaseException:
-        pool.shutdown(wait=False, cancel_futures=True)
-        raise
-    return pool

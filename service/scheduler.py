@@ -59,12 +59,16 @@ class LRUCache:
                 self._items.move_to_end(key)
                 return value, True
         value = compute()  # outside the lock: two racing misses both compute, harmlessly
+        self.put(key, value)
+        return value, False
+
+    def put(self, key: FRTKey, value: Any) -> None:
+        """Cache ``value`` for ``key`` (e.g. computed elsewhere)."""
         with self._lock:
             self._items[key] = value
             self._items.move_to_end(key)
             while len(self._items) > self._size:
                 self._items.popitem(last=False)
-        return value, False
 
 
 class FRTScheduler:
@@ -225,7 +229,7 @@ class FRTScheduler:
                 self._running.add(key)
                 executor = self._executor
                 try:
-                    handle = executor.submit(_timed, job.compute)
+                    handle = executor.submit(timed, job.compute)
                 except Exception as exc:  # e.g. a broken process pool; _finished says so
                     handle = Future()
                     handle.set_exception(exc)
@@ -273,7 +277,7 @@ class FRTScheduler:
             self._executor = ThreadPoolExecutor(self._workers, thread_name_prefix="frt-exact")
             self._pending[key] = job
             self._running.add(key)
-            handle = self._executor.submit(_timed, job.compute)
+            handle = self._executor.submit(timed, job.compute)
         broken.shutdown(wait=False, cancel_futures=True)
         handle.add_done_callback(functools.partial(self._finished, key))
         self._dispatch()
@@ -286,7 +290,7 @@ class _Job:
     future: Future[Any]
 
 
-def _timed(compute: Callable[[], Any]) -> tuple[Any, float]:
+def timed(compute: Callable[[], Any]) -> tuple[Any, float]:
     """``compute()`` and its duration in seconds (module level: it runs in worker processes too)."""
     start = time.perf_counter()
     result = compute()

@@ -9,6 +9,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
+from concurrent.futures import BrokenExecutor, Executor, Future
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -18,10 +19,10 @@ from starlette.requests import HTTPConnection
 
 from service.engine import FRTEngine, FRTSet, Pose
 from service.errors import ServiceUnavailableError
-from service.exact_worker import ExactTask, start_pool
+from service.exact_worker import ConservativeTask, ExactTask, start_pool
 from service.metrics import Metrics
 from service.model_runtime import ValueModel
-from service.scheduler import FRTKey, FRTScheduler, LRUCache
+from service.scheduler import FRTKey, FRTScheduler, LRUCache, timed
 from service.settings import Settings
 from service.store import AgentState, AgentStore, make_store
 
@@ -55,6 +56,8 @@ class Services:
     model_name: str | None = None
     model_error: str | None = "model is loading"
     _loader: asyncio.Task[None] | None = field(default=None, repr=False)
+    #: A worker process for conservative sets (None: they are built on threads of this process).
+    _conservative_pool: Executor | None = field(default=None, repr=False)
     #: Recent seconds per agent to answer a collision check once its sets are known (moving average).
     _answer_s_per_agent: float = field(default=0.0, repr=False)
 
@@ -84,6 +87,9 @@ class Services:
         if self._loader is not None and not self._loader.done():
             self._loader.cancel()
         self.scheduler.shutdown()
+        pool, self._conservative_pool = self._conservative_pool, None
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
         await self.store.close()
 
     def load_model(self) -> None:
@@ -126,6 +132,13 @@ class Services:
             )
             return
         self.scheduler.use_executor(pool)
+        try:  # at the server's priority: checks that find the exact set late need these at once
+            self._conservative_pool = start_pool(path, 1, 0)
+        except Exception as exc:
+            log.warning(
+                "conservative-set worker not started: building them on threads",
+                extra={"error": repr(exc)},
+            )
         log.info(
             "FRT worker processes started",
             extra={"workers": workers, "seconds": round(time.perf_counter() - start, 3)},
@@ -147,6 +160,13 @@ class Services:
         """Start computing the exact set of ``job`` in the background."""
         self.scheduler.submit(job.key, self.exact_task(job))
 
+    def cached_exact(self, job: FRTJob) -> FRTSet | None:
+        """The exact set of ``job`` if it is computed already (counted as a cache hit), else None."""
+        frt = self.scheduler.lookup(job.key)
+        if frt is not None:
+            self.metrics.frt_cache.labels("hit").inc()
+        return frt  # type: ignore[no-any-return]
+
     async def exact_within(
         self, job: FRTJob, timeout_s: float, *, wait_if_queued: bool = True
     ) -> FRTSet | None:
@@ -163,10 +183,42 @@ class Services:
         return ExactTask(job.pose, job.v_start, job.bounds, self.require_engine())
 
     def prepare_conservative(self, job: FRTJob) -> None:
-        """Build the conservative set of ``job`` now, in a thread, so that a collision check that
-        finds the exact set late looks it up instead of building it (~1 ms each: 50 agents in one
-        check would otherwise miss a 20 ms deadline on this alone)."""
-        asyncio.get_running_loop().run_in_executor(None, self.conservative, job)
+        """Build the conservative set of ``job`` now, in the conservative-set worker process (or a
+        thread), so that a collision check that finds the exact set late looks it up instead of
+        building it (~1 ms each: 50 agents in one check would otherwise miss a 20 ms deadline on
+        this alone)."""
+        pool = self._conservative_pool
+        if pool is None:
+            asyncio.get_running_loop().run_in_executor(None, self.conservative, job)
+            return
+        try:
+            handle = pool.submit(timed, ConservativeTask(job.pose, job.v_start, job.bounds))
+        except Exception as exc:  # a broken pool: threads from now on
+            self._conservative_failed(exc)
+            asyncio.get_running_loop().run_in_executor(None, self.conservative, job)
+            return
+        handle.add_done_callback(lambda done: self._conservative_done(job, done))
+
+    def _conservative_done(self, job: FRTJob, done: Future[Any]) -> None:
+        if done.cancelled():
+            return
+        error = done.exception()
+        if isinstance(error, BrokenExecutor):
+            self._conservative_failed(error)
+        if error is not None:
+            return  # a check that needs the set builds it (and answers for a failure there)
+        result, seconds = done.result()
+        self.metrics.frt_compute_seconds.labels("conservative").observe(seconds)
+        self.conservative_cache.put(job.key, result)
+
+    def _conservative_failed(self, error: BaseException) -> None:
+        pool, self._conservative_pool = self._conservative_pool, None
+        if pool is not None:
+            log.error(
+                "conservative-set worker failed: building them on threads from now on",
+                extra={"error": repr(error)},
+            )
+            pool.shutdown(wait=False, cancel_futures=True)
 
     def conservative(self, job: FRTJob) -> FRTSet:
         """The engine's fast set that contains the exact one (blocking: call from a thread).

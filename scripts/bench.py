@@ -5,9 +5,10 @@ it with httpx from this process. Prints medians and p99 for:
 
 1. a collision check of a 20-point trajectory against one agent, warm (exact set cached);
 2. observation -> new FRT ready (a new prediction and a new beta; timed until GET agent reports
-   the exact set of the new version computed, polling every 2 ms: each poll is a request the
-   server answers on the same 2 cores, and polling every 0.5 ms mostly measured that load; the
-   figure can be up to one poll interval, 2 ms, above the true one);
+   the exact set of the new version computed: one ``GET /v1/agents/{id}?wait_frt_ms=...``, which
+   the server answers as soon as that set is ready. Earlier versions polled GET agent every 2 ms;
+   each poll is a request the server answers on the same 2 cores, so polling measured its own
+   load too);
 3. contours for one agent (tube + 3 slices), on a fresh FRT version each time;
 4. sustained: 50 agents observed at 2 Hz while a planner checks all of them at 10 Hz;
 5. the exact set alone, in-process, for a moving and for a parked car;
@@ -137,11 +138,10 @@ def bench_observe_to_ready(client: httpx.Client, n: int) -> dict:
         r = client.post("/v1/agents/bench-obs/observations", json=observation(float(i), rng, False))
         r.raise_for_status()
         version = r.json()["frt_version"]
-        while True:  # poll until the exact set of this version is computed
-            agent = client.get("/v1/agents/bench-obs").json()
+        while True:  # the server answers once the exact set of this version is computed
+            agent = client.get("/v1/agents/bench-obs", params={"wait_frt_ms": 1000}).json()
             if agent["frt_ready"] and agent["frt_version"] == version:
                 break
-            time.sleep(0.002)
         times.append(time.perf_counter() - t0)
     return stats(times)
 

@@ -80,6 +80,16 @@ def test_observation_flow_updates_beta_and_versions(http: httpx.Client) -> None:
     assert agent_view["hypotheses"] == pytest.approx({"beta_low": 0.03, "beta_high": 1.0})
 
 
+def test_get_agent_can_wait_for_the_exact_set(http: httpx.Client) -> None:
+    """``wait_frt_ms`` answers once the exact FRT of the current version is ready: one request
+    instead of polling (the bench's observation -> ready measure)."""
+    agent = new_agent()
+    version = http.post(f"/v1/agents/{agent}/observations", json=observation(3.0)).json()
+    body = http.get(f"/v1/agents/{agent}", params={"wait_frt_ms": 10_000}).json()
+    assert body["frt_ready"] is True and body["frt_version"] == version["frt_version"]
+    assert http.get(f"/v1/agents/{agent}", params={"wait_frt_ms": -1}).status_code == 422
+
+
 def test_stale_timestamp_is_409_and_keeps_state(http: httpx.Client) -> None:
     agent = new_agent()
     assert http.post(f"/v1/agents/{agent}/observations", json=observation(5.0)).status_code == 200

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter
+from typing import Annotated
+
+from fastapi import APIRouter, Query
 
 from service import agents
 from service.routes.params import AgentIdPath, ServicesDep
@@ -20,9 +22,21 @@ async def observe(
 
 
 @router.get("/{agent_id}", response_model=AgentResponse)
-async def get_agent(agent_id: AgentIdPath, services: ServicesDep) -> AgentResponse:
+async def get_agent(
+    agent_id: AgentIdPath,
+    services: ServicesDep,
+    wait_frt_ms: Annotated[
+        float,
+        Query(
+            ge=0.0,
+            le=10_000.0,
+            description="wait up to this long for the exact FRT of the current version "
+            "(answer as soon as frt_ready is true): one request instead of polling",
+        ),
+    ] = 0.0,
+) -> AgentResponse:
     """The agent's beta, belief, control bounds, last timestamp, FRT version and config."""
-    return await agents.get_agent(services, agent_id)
+    return await agents.get_agent(services, agent_id, wait_frt_ms / 1000.0)
 
 
 @router.delete("/{agent_id}", response_model=DeleteResponse)

@@ -39,8 +39,8 @@ from models.contract import COL, HORIZON_S, N_INPUTS
 from models.eval_settings import SETTINGS, Setting
 from models.export_card import write_card
 from models.rollout import (
+    EDGE_SHARE,
     rk4_rollout,
-    sample_control_schedules,
     sample_initial_states,
     sample_reference_schedules,
 )
@@ -51,8 +51,6 @@ from service.model_runtime import ValueModel
 TUBE_TIMES = (1.0, 2.0, 3.0)
 CELL_M = 0.25
 DT = 0.02
-#: Share of rollouts started on the edge of the initial set (where the extreme trajectories start).
-EDGE_SHARE = 0.5
 REFERENCE = (
     "rollouts of the true dynamics (RK4, dt 0.02 s), half started on the edge of the initial set; "
     "60 % under Pontryagin-shaped schedules (turn hard, drive straight; u2 at its bounds), the rest "
@@ -234,8 +232,8 @@ def calibrate(
         v_start, bounds = float(row[COL["v_start"]]), row[6:].astype(np.float32)
         p = np.repeat(row[None, :], per_setting, axis=0)
         t = rng.choice(slice_times, size=per_setting)
-        start = sample_initial_states(p[:, COL["v_start"]], rng)
-        a1, a2, sw = sample_control_schedules(per_setting, HORIZON_S, rng)
+        start = sample_initial_states(p[:, COL["v_start"]], rng, on_boundary=EDGE_SHARE)
+        a1, a2, sw = sample_reference_schedules(per_setting, HORIZON_S, rng)
         sw = sw * (t / HORIZON_S)[:, None]
         end, _ = rk4_rollout(start, p, t, a1, a2, sw, 60)
         states = np.stack(end, axis=1)

@@ -34,7 +34,12 @@ from models.contract import COL, HORIZON_S, INITIAL_SET, N_INPUTS
 from models.export_card import file_sha256, write_card
 from models.network import NominalFrame, asinh_by_logs
 from models.outer_bound import box_scale
-from models.rollout import rk4_rollout, sample_control_schedules, sample_initial_states
+from models.rollout import (
+    EDGE_SHARE,
+    rk4_rollout,
+    sample_initial_states,
+    sample_reference_schedules,
+)
 from models.sampling import sample_parameters
 
 
@@ -115,8 +120,9 @@ def reachable_xy(
     n = len(params)
     times = rng.choice(_slice_times(slice_dt), size=(n_settings * times_per_setting, 1))
     t = np.repeat(times, block, axis=1).ravel()
-    start = sample_initial_states(params[:, COL["v_start"]], rng)
-    a1, a2, sw = sample_control_schedules(n, HORIZON_S, rng)
+    # The evaluation's schedules, extremal ones included: the level must hold at the set's edge.
+    start = sample_initial_states(params[:, COL["v_start"]], rng, on_boundary=EDGE_SHARE)
+    a1, a2, sw = sample_reference_schedules(n, HORIZON_S, rng)
     end, _ = rk4_rollout(start, params, t, a1, a2, sw * (t / HORIZON_S)[:, None], 60)
     x = params.copy()
     x[:, COL["t"]] = t
@@ -257,7 +263,7 @@ def main() -> None:
     parser.add_argument("--settings", type=int, default=3000)
     parser.add_argument("--per-setting", type=int, default=64)
     parser.add_argument("--steps", type=int, default=6000)
-    parser.add_argument("--calibration-settings", type=int, default=2000)
+    parser.add_argument("--calibration-settings", type=int, default=12000)
     parser.add_argument("--seed", type=int, default=11)
     parser.add_argument(
         "--calibrate-only",

@@ -21,6 +21,9 @@ from models.dynamics import interpolate_bounds, unicycle_derivative
 
 Array = Any
 
+#: Share of reference rollouts started on the edge of the initial set, where extreme paths start.
+EDGE_SHARE = 0.5
+
 #: Phase value meaning "hold the control at the admissible value nearest 0" (clip(0, lo, hi)).
 ZERO_SEEKING = -1.0
 

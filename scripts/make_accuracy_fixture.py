@@ -14,7 +14,12 @@ import numpy as np
 from models.contract import COL, HORIZON_S, N_INPUTS
 from models.eval_settings import SETTINGS
 from models.outer_bound import outer_bound
-from models.rollout import rk4_rollout, sample_initial_states, sample_reference_schedules
+from models.rollout import (
+    EDGE_SHARE,
+    rk4_rollout,
+    sample_initial_states,
+    sample_reference_schedules,
+)
 
 NAMES = (
     "stationary_narrow",
@@ -39,7 +44,7 @@ def main() -> None:
         params[:, COL["v_start"]] = setting.v_start
         params[:, 6:] = bounds
         t = rng.uniform(0.05, HORIZON_S, PER_SETTING)
-        start = sample_initial_states(params[:, COL["v_start"]], rng, on_boundary=0.5)
+        start = sample_initial_states(params[:, COL["v_start"]], rng, on_boundary=EDGE_SHARE)
         a1, a2, sw = sample_reference_schedules(PER_SETTING, HORIZON_S, rng)
         end, _ = rk4_rollout(start, params, t, a1, a2, sw * (t / HORIZON_S)[:, None], 150)
         rows = params.copy()

@@ -18,8 +18,9 @@ from typing import Any
 import numpy as np
 
 from service.agents import effective_config
+from service.batch import box_clearances
 from service.confidence import Belief
-from service.engine import FRTSet
+from service.engine import BoxTubeSet, FRTSet
 from service.errors import AgentNotFoundError, FieldError
 from service.limits import check_agents, check_trajectory
 from service.schemas import (
@@ -30,7 +31,7 @@ from service.schemas import (
     MultiCollisionCheckResponse,
     TrajectoryPoint,
 )
-from service.services import FRTJob, Services
+from service.services import Services
 from service.settings import Settings
 from service.store import AgentState
 
@@ -54,11 +55,19 @@ def answer(
 
 
 def answer_fields(
-    frt: FRTSet, xy: np.ndarray, times: np.ndarray, collision_radius: float, t_origin: float | None
+    frt: FRTSet,
+    xy: np.ndarray,
+    times: np.ndarray,
+    collision_radius: float,
+    t_origin: float | None,
+    distance_to_k: np.ndarray | None = None,
 ) -> dict[str, Any]:
-    """The fields of :class:`CollisionAnswer` for points ``xy`` at ``times`` (see :func:`answer`)."""
-    t_rel = None if t_origin is None else times - t_origin
-    distance = np.asarray(frt.clearance(xy, t_rel), dtype=np.float64) - collision_radius
+    """The fields of :class:`CollisionAnswer` for points ``xy`` at ``times`` (see :func:`answer`);
+    ``distance_to_k``: ``frt.clearance`` of those points, if computed already."""
+    if distance_to_k is None:
+        t_rel = None if t_origin is None else times - t_origin
+        distance_to_k = frt.clearance(xy, t_rel)
+    distance = np.asarray(distance_to_k, dtype=np.float64) - collision_radius
     # NaN would be a bug in the geometry; count it as a collision rather than as clear.
     distance = np.where(np.isnan(distance), -CLEARANCE_LIMIT, distance)
     clearance = np.clip(distance, -CLEARANCE_LIMIT, CLEARANCE_LIMIT)
@@ -103,12 +112,14 @@ async def answer_states(
     # Cached sets first, without a task each (a planner's check of 50 agents mostly finds them).
     exact = [services.cached_exact(job) for job in jobs]
     late = [i for i, frt in enumerate(exact) if frt is None]
-    if late:
-        waited = await asyncio.gather(
-            *(services.exact_within(jobs[i], budget, wait_if_queued=False) for i in late)
-        )
-        for i, frt in zip(late, waited, strict=True):
-            exact[i] = frt
+    # The late ones: only sets that may still make it are waited for, all in one wait.
+    futures = {i: services.exact_future(jobs[i], budget) for i in late}
+    waiting = {i: f for i, f in futures.items() if f is not None}
+    if waiting and budget > 0:
+        await asyncio.wait({asyncio.wrap_future(f) for f in waiting.values()}, timeout=budget)
+    for i, future in waiting.items():
+        if future.done() and not future.cancelled() and future.exception() is None:
+            exact[i] = future.result()
 
     xy = np.array([[p.x, p.y] for p in request.trajectory], dtype=np.float64)
     times = np.array([p.t for p in request.trajectory], dtype=np.float64)
@@ -116,9 +127,32 @@ async def answer_states(
     # Answered on the event loop: ~0.1 ms per agent, less than the thread hop and the GIL hand-offs
     # with the loop that answering in a worker thread cost.
     start = time.perf_counter()
+    conservative = {i: services.conservative(jobs[i]) for i, frt in enumerate(exact) if frt is None}
+    boxes = {i: s for i, s in conservative.items() if isinstance(s, BoxTubeSet)}
+    origins = [state.timestamp if request.mode == "time_indexed" else None for state in states]
+    distances: dict[int, np.ndarray] = dict(
+        zip(
+            boxes,
+            box_clearances(
+                list(boxes.values()),
+                xy,
+                [None if origins[i] is None else times - origins[i] for i in boxes],
+            ),
+            strict=True,
+        )
+    )
     results = [
-        _respond(services, state, job, frt, request, xy, times)
-        for state, job, frt in zip(states, jobs, exact, strict=True)
+        _respond(
+            services,
+            state,
+            exact[i] if exact[i] is not None else conservative[i],
+            exact[i] is None,
+            request,
+            xy,
+            times,
+            distances.get(i),
+        )
+        for i, state in enumerate(states)
     ]
     services.record_answer_time(time.perf_counter() - start, len(states))
     if time.perf_counter() - arrival > deadline_ms / 1000.0:
@@ -129,15 +163,14 @@ async def answer_states(
 def _respond(
     services: Services,
     state: AgentState,
-    job: FRTJob,
-    frt: FRTSet | None,
+    frt: FRTSet,
+    conservative: bool,
     request: CollisionCheckRequest,
     xy: np.ndarray,
     times: np.ndarray,
+    distance: np.ndarray | None = None,
 ) -> CollisionCheckResponse:
-    conservative = frt is None
-    if frt is None:
-        frt = services.conservative(job)
+    """One agent's answer from ``frt`` (``distance``: its clearances before R_col, if known)."""
     services.metrics.collision_checks.labels("conservative" if conservative else "exact").inc()
     radius = request.collision_radius
     if radius is None:
@@ -146,7 +179,7 @@ def _respond(
     belief = state.belief
     # Built from values of the right types: no second validation of every clearance.
     return CollisionCheckResponse.model_construct(
-        **answer_fields(frt, xy, times, radius, t_origin),
+        **answer_fields(frt, xy, times, radius, t_origin, distance),
         agent_id=state.agent_id,
         mode=request.mode,
         collision_radius=radius,

@@ -186,21 +186,24 @@ class BoxTubeSet(FRTSet):
         """Distance to the union of boxes (exact outside; inside, the depth in the union)."""
         xy = to_human_frame(np.asarray(xy_world, dtype=float).reshape(-1, 2), self.pose)
         b = self.boxes
-        dx = np.maximum(b[None, :, 0] - xy[:, None, 0], xy[:, None, 0] - b[None, :, 1])
-        dy = np.maximum(b[None, :, 2] - xy[:, None, 1], xy[:, None, 1] - b[None, :, 3])
-        outside = np.hypot(np.maximum(dx, 0), np.maximum(dy, 0))
+        x, y = xy[:, :1], xy[:, 1:]
+        dx = np.maximum(b[:, 0] - x, x - b[:, 1])
+        dy = np.maximum(b[:, 2] - y, y - b[:, 3])
+        outside = np.hypot(np.maximum(dx, 0.0), np.maximum(dy, 0.0))
         distance = np.where((dx <= 0) & (dy <= 0), np.maximum(dx, dy), outside)
-        if t_rel is None:
+        if t_rel is None:  # every box counts: the whole-horizon tube
             index = np.full(len(xy), self.n_slices - 1)
+            result = distance.min(axis=1)
         else:
             index = np.array(
                 [self.tube_index(float(t)) for t in np.asarray(t_rel).reshape(-1)], dtype=int
             )
-        n = self.boxes_until[index]
-        mask = np.arange(len(b))[None, :] < n[:, None]
-        result = np.where(mask, distance, np.inf).min(axis=1)
-        for row in np.nonzero(result < 0)[0]:  # inside: the depth in the union, not in one box
-            result[row] = signed_distance(self.tube(int(index[row])), xy[row : row + 1])[0]
+            mask = np.arange(len(b))[None, :] < self.boxes_until[index][:, None]
+            result = np.where(mask, distance, np.inf).min(axis=1)
+        inside = np.flatnonzero(result < 0)
+        for j in np.unique(index[inside]):  # inside: the depth in the union, not in one box
+            rows = inside[index[inside] == j]
+            result[rows] = signed_distance(self.tube(int(j)), xy[rows])
         return result
 
     def tube(self, j: int) -> BaseGeometry:

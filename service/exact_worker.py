@@ -95,9 +95,14 @@ class ConservativeTask:
 
 
 def init_worker(model_path: str, nice: int, parent_pid: int) -> None:
-    """Process initializer: lower the priority, load the engine, warm it, watch the parent."""
+    """Process initializer: batch scheduling and a lower priority, load the engine, warm it, watch
+    the parent."""
     global _engine
     keep_freed_memory()
+    # Batch scheduling: a worker woken by a task does not preempt the server that sent it (it did,
+    # measured as ~1.7 ms of wall time per pipe write on a busy machine).
+    with contextlib.suppress(AttributeError, OSError):
+        os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
     if nice:
         with contextlib.suppress(OSError):  # not permitted here: run at the server's priority
             os.nice(nice)

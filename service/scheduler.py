@@ -91,6 +91,10 @@ class FRTScheduler:
         self._pending: dict[FRTKey, _Job] = {}  # queued or running
         self._queue: OrderedDict[Hashable, FRTKey] = OrderedDict()  # one per agent, FIFO
         self._running: set[FRTKey] = set()
+        #: When each running set was handed to a worker, and how long sets take from there
+        #: (moving average), to tell whether a running set can finish within a check's wait.
+        self._started: dict[FRTKey, float] = {}
+        self._typical_s = 0.0
         self._discard: set[FRTKey] = set()  # running for a forgotten agent: do not cache
         self._lock = threading.RLock()  # done-callbacks may run inline in submit()
 
@@ -182,7 +186,9 @@ class FRTScheduler:
 
         With ``wait_if_queued=False`` a set that is still queued behind others (submitted earlier,
         not yet started) is not waited for: it would rarely finish within a collision check's
-        deadline. Never cancels the computation: a late result still lands in the cache.
+        deadline; nor is a running one that, at the recent pace of the workers, would not finish
+        within ``timeout_s`` (on a saturated machine a check would otherwise spend its wait on sets
+        that come too late). Never cancels the computation: a late result still lands in the cache.
         """
         cached = self.lookup(key)
         if cached is not None:
@@ -192,8 +198,11 @@ class FRTScheduler:
             under_way = key in self._pending
         self._metrics.frt_cache.labels("pending" if under_way else "miss").inc()
         submitted = self.submit(key, compute)
-        if under_way and not wait_if_queued and not (submitted.running() or submitted.done()):
-            return None
+        if under_way and not wait_if_queued:
+            if not (submitted.running() or submitted.done()):
+                return None
+            if self.expected_remaining_s(key) > timeout_s:
+                return None
         if submitted.cancelled():
             return None
         future = asyncio.wrap_future(submitted)
@@ -202,6 +211,34 @@ class FRTScheduler:
         if future.done() and not future.cancelled() and future.exception() is None:
             return future.result()
         return None
+
+    def waitable(
+        self, key: FRTKey, compute: Callable[[], Any], timeout_s: float
+    ) -> Future[Any] | None:
+        """For a collision check, without awaiting: the future of ``key``'s set if it may be ready
+        within ``timeout_s`` (done, or running and due at the workers' recent pace), else ``None``
+        (queued behind others, or too slow). Starts computing it if nobody has. A check of many
+        agents then awaits the few futures together instead of one task per agent."""
+        with self._lock:
+            under_way = key in self._pending
+        self._metrics.frt_cache.labels("pending" if under_way else "miss").inc()
+        future = self.submit(key, compute)
+        if future.cancelled():
+            return None
+        if future.done():
+            return future
+        if not future.running() or self.expected_remaining_s(key) > timeout_s:
+            return None
+        return future
+
+    def expected_remaining_s(self, key: FRTKey) -> float:
+        """About how long until the running set ``key`` is done (0 if unknown or not running)."""
+        with self._lock:
+            started = self._started.get(key)
+            typical = self._typical_s
+        if started is None:
+            return 0.0
+        return max(started + typical - time.perf_counter(), 0.0)
 
     def forget(self, agent_id: str) -> None:
         with self._lock:
@@ -227,6 +264,7 @@ class FRTScheduler:
                     del self._pending[key]
                     continue
                 self._running.add(key)
+                self._started[key] = time.perf_counter()
                 executor = self._executor
                 try:
                     handle = executor.submit(timed, job.compute)
@@ -238,6 +276,9 @@ class FRTScheduler:
     def _finished(self, key: FRTKey, handle: Future[Any]) -> None:
         with self._lock:
             self._running.discard(key)
+            started = self._started.pop(key, None)
+            if started is not None and not handle.cancelled() and handle.exception() is None:
+                self._typical_s += 0.2 * (time.perf_counter() - started - self._typical_s)
             job = self._pending.pop(key, None)
             discard = key in self._discard
             self._discard.discard(key)
@@ -277,6 +318,7 @@ class FRTScheduler:
             self._executor = ThreadPoolExecutor(self._workers, thread_name_prefix="frt-exact")
             self._pending[key] = job
             self._running.add(key)
+            self._started[key] = time.perf_counter()
             handle = self._executor.submit(timed, job.compute)
         broken.shutdown(wait=False, cancel_futures=True)
         handle.add_done_callback(functools.partial(self._finished, key))

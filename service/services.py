@@ -20,6 +20,7 @@ from starlette.requests import HTTPConnection
 from service.engine import FRTEngine, FRTSet, Pose
 from service.errors import ServiceUnavailableError
 from service.exact_worker import ConservativeTask, ExactTask, start_pool
+from service.memory import keep_freed_memory
 from service.metrics import Metrics
 from service.model_runtime import ValueModel
 from service.scheduler import FRTKey, FRTScheduler, LRUCache, timed
@@ -80,6 +81,7 @@ class Services:
 
     # ------------------------------------------------------------------ lifecycle
     async def start(self) -> None:
+        keep_freed_memory()  # a check of 50 agents stacks ~1 MB arrays: no page faults for them
         self.scheduler.start()
         self._loader = asyncio.create_task(asyncio.to_thread(self.load_model))
 
@@ -166,6 +168,11 @@ class Services:
         if frt is not None:
             self.metrics.frt_cache.labels("hit").inc()
         return frt  # type: ignore[no-any-return]
+
+    def exact_future(self, job: FRTJob, timeout_s: float) -> Future[Any] | None:
+        """The future of ``job``'s exact set if it may be ready within ``timeout_s``, else None
+        (``FRTScheduler.waitable``; starts the set if nobody has)."""
+        return self.scheduler.waitable(job.key, self.exact_task(job), timeout_s)
 
     async def exact_within(
         self, job: FRTJob, timeout_s: float, *, wait_if_queued: bool = True

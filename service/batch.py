@@ -1,0 +1,72 @@
+"""Clearances of one trajectory against many conservative sets at once.
+
+A planner's check of 50 agents whose exact sets are late answers from 50 :class:`BoxTubeSet`\\ s;
+``BoxTubeSet.clearance`` one by one is ~15 small numpy calls per agent. Here the agents' boxes are
+stacked ([A, M, 4]) and the distances of every point to every box of every agent come from one set
+of calls; the values are the same as ``BoxTubeSet.clearance``'s (same operations, same order).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from service.engine import BoxTubeSet, signed_distance
+
+
+def box_clearances(
+    sets: Sequence[BoxTubeSet], xy_world: np.ndarray, t_rel: Sequence[np.ndarray | None]
+) -> list[np.ndarray]:
+    """``[s.clearance(xy_world, t) for s, t in zip(sets, t_rel)]``, computed together for the sets
+    with the same number of boxes."""
+    xy_world = np.asarray(xy_world, dtype=float).reshape(-1, 2)
+    out: list[np.ndarray | None] = [None] * len(sets)
+    groups: dict[int, list[int]] = {}
+    for i, s in enumerate(sets):
+        groups.setdefault(len(s.boxes), []).append(i)
+    for members in groups.values():
+        for i, result in zip(
+            members,
+            _same_size([sets[i] for i in members], xy_world, [t_rel[i] for i in members]),
+            strict=True,
+        ):
+            out[i] = result
+    return out  # type: ignore[return-value]
+
+
+def _same_size(
+    sets: list[BoxTubeSet], xy_world: np.ndarray, t_rel: list[np.ndarray | None]
+) -> list[np.ndarray]:
+    headings = np.array([s.pose.heading for s in sets])
+    c, s_ = np.cos(headings)[:, None], np.sin(headings)[:, None]
+    dx0 = xy_world[None, :, 0] - np.array([s.pose.x for s in sets])[:, None]  # [A, N]
+    dy0 = xy_world[None, :, 1] - np.array([s.pose.y for s in sets])[:, None]
+    x = (c * dx0 + s_ * dy0)[:, :, None]  # the human frame, as to_human_frame computes it
+    y = (-s_ * dx0 + c * dy0)[:, :, None]
+    b = np.stack([s.boxes for s in sets])[:, None, :, :]  # [A, 1, M, 4]
+    dx = np.maximum(b[..., 0] - x, x - b[..., 1])  # [A, N, M]
+    dy = np.maximum(b[..., 2] - y, y - b[..., 3])
+    outside = np.hypot(np.maximum(dx, 0.0), np.maximum(dy, 0.0))
+    distance = np.where((dx <= 0) & (dy <= 0), np.maximum(dx, dy), outside)
+    n_points, n_boxes = xy_world.shape[0], b.shape[2]
+    index = np.empty((len(sets), n_points), dtype=int)
+    for a, (frt, t) in enumerate(zip(sets, t_rel, strict=True)):
+        if t is None:
+            index[a] = frt.n_slices - 1
+        else:
+            index[a] = [frt.tube_index(float(v)) for v in np.asarray(t).reshape(-1)]
+    until = np.stack([frt.boxes_until for frt in sets])  # [A, J]
+    limit = np.take_along_axis(until, index, axis=1)  # [A, N]
+    mask = np.arange(n_boxes)[None, None, :] < limit[:, :, None]
+    result = np.where(mask, distance, np.inf).min(axis=2)
+    human = np.concatenate([x, y], axis=2)  # [A, N, 2]
+    answers = []
+    for a, frt in enumerate(sets):
+        row = result[a]
+        inside = np.flatnonzero(row < 0)
+        for j in np.unique(index[a, inside]):  # inside: the depth in the union, not in one box
+            rows = inside[index[a, inside] == j]
+            row[rows] = signed_distance(frt.tube(int(j)), human[a, rows])
+        answers.append(row)
+    return answers

@@ -1,0 +1,36 @@
+"""Clearances against many conservative sets at once equal the sets' own, one by one."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from service.batch import box_clearances
+from service.engine import FRTEngine, Pose
+from service.model_runtime import ValueModel
+
+BOUNDS = np.array([-0.3, -2.0, -0.2, -1.0, 0.3, 1.5, 0.25, 2.0])
+
+
+def test_batched_box_clearances_equal_the_sets_own(analytic_model_path: Path) -> None:
+    engine = FRTEngine(ValueModel.load(analytic_model_path))
+    rng = np.random.default_rng(3)
+    sets = [
+        engine.conservative(Pose(float(x), float(y), float(h)), float(v), BOUNDS * float(scale))
+        for x, y, h, v, scale in zip(
+            rng.uniform(-10, 10, 8),
+            rng.uniform(-10, 10, 8),
+            rng.uniform(-3, 3, 8),
+            rng.uniform(0, 15, 8),
+            rng.uniform(0.2, 1.0, 8),
+            strict=True,
+        )
+    ]
+    xy = rng.uniform(-30, 60, size=(40, 2))
+    t_rel = [None if i % 2 else rng.uniform(-0.5, 3.5, size=40) for i in range(len(sets))]
+    together = box_clearances(sets, xy, t_rel)
+    for frt, t, mine in zip(sets, t_rel, together, strict=True):
+        alone = frt.clearance(xy, t)
+        assert np.array_equal(mine, alone)
+    assert any((c < 0).any() for c in together) and any((c > 0).any() for c in together)

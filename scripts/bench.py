@@ -10,7 +10,9 @@ it with httpx from this process. Prints medians and p99 for:
    each poll is a request the server answers on the same 2 cores, so polling measured its own
    load too);
 3. contours for one agent (tube + 3 slices), on a fresh FRT version each time;
-4. sustained: 50 agents observed at 2 Hz while a planner checks all of them at 10 Hz;
+4. sustained: 50 agents observed at 2 Hz while a planner (a process of its own) checks all of
+   them at 10 Hz with one multi-agent request per round; a round misses its deadline when its
+   end-to-end time exceeds the request's ``deadline_ms`` (20 ms);
 5. the exact set alone, in-process, for a moving and for a parked car;
 
 and, side by side in the same run, the naive approach: building the set by evaluating the full
@@ -161,18 +163,66 @@ def bench_contours(client: httpx.Client, n: int) -> dict:
     return stats(times)
 
 
-async def bench_sustained(url: str, agents: int, seconds: float, headers: dict) -> dict:
-    rng = np.random.default_rng(3)
+async def _planner(url: str, start_at: float, seconds: float, deadline_ms: float) -> dict:
+    """Check all agents at 10 Hz with one multi-agent request each (API.md: POST
+    /v1/collision-check), from ``start_at`` (time.time()) for ``seconds``."""
     check_times: list[float] = []
-    obs_times: list[float] = []
     misses = conservative = errors = 0
+    async with httpx.AsyncClient(base_url=url, timeout=5) as client:
+        await asyncio.sleep(max(0.0, start_at - time.time()))
+        start = time.monotonic()
+        while time.monotonic() - start < seconds:
+            t0 = time.perf_counter()
+            body = {"trajectory": trajectory(1.0), "mode": "tube", "deadline_ms": deadline_ms}
+            r = await client.post("/v1/collision-check", json=body)
+            dt = time.perf_counter() - t0
+            check_times.append(dt)
+            errors += r.status_code != 200
+            if r.status_code == 200:
+                conservative += r.json()["conservative"]
+            misses += dt * 1e3 > deadline_ms
+            await asyncio.sleep(max(0.0, 0.1 - dt))
+    return {
+        "check_times": check_times,
+        "misses": misses,
+        "conservative": conservative,
+        "errors": errors,
+    }
+
+
+def _planner_process(url: str, start_at: float, seconds: float, deadline_ms: float, conn) -> None:
+    """The planner in a process of its own (spawned): a planner and the perception feeding the
+    observations are different programs; in one event loop the observers' 100 requests/s delayed
+    the planner's own sends and reads, which the service's latency does not include."""
+    conn.send(asyncio.run(_planner(url, start_at, seconds, deadline_ms)))
+    conn.close()
+
+
+async def bench_sustained(url: str, agents: int, seconds: float, headers: dict) -> dict:
+    """``agents`` agents observed at 2 Hz (one asyncio client, a keep-alive connection per
+    observer) while a planner in another process checks all of them at 10 Hz; a check-all round
+    misses its deadline when its end-to-end time exceeds ``deadline_ms``."""
+    import multiprocessing
+
+    rng = np.random.default_rng(3)
+    obs_times: list[float] = []
+    errors = 0
     deadline_ms = 20.0
-    start = time.monotonic()
-    async with httpx.AsyncClient(base_url=url, timeout=5, headers=headers) as client:
+    limits = httpx.Limits(max_connections=agents + 10, max_keepalive_connections=agents + 10)
+    async with httpx.AsyncClient(base_url=url, timeout=5, headers=headers, limits=limits) as client:
         for a in range(agents):
             await client.post(
                 f"/v1/agents/s{a}/observations", json=observation(0.0, rng, True, 10.0 * a)
             )
+        context = multiprocessing.get_context("spawn")
+        receive, send = context.Pipe(duplex=False)
+        start_at = time.time() + 3.0  # the spawned planner imports httpx and numpy first
+        planner = context.Process(
+            target=_planner_process, args=(url, start_at, seconds, deadline_ms, send)
+        )
+        planner.start()
+        await asyncio.sleep(max(0.0, start_at - time.time()))
+        start = time.monotonic()
 
         async def observer(a: int) -> None:
             nonlocal errors
@@ -189,30 +239,21 @@ async def bench_sustained(url: str, agents: int, seconds: float, headers: dict) 
                 k += 1
                 await asyncio.sleep(0.5)
 
-        async def planner() -> None:
-            nonlocal misses, conservative, errors
-            while time.monotonic() - start < seconds:
-                t0 = time.perf_counter()
-                body = {"trajectory": trajectory(1.0), "mode": "tube", "deadline_ms": deadline_ms}
-                r = await client.post("/v1/collision-check", json=body)
-                dt = time.perf_counter() - t0
-                check_times.append(dt)
-                errors += r.status_code != 200
-                if r.status_code == 200:
-                    conservative += r.json()["conservative"]
-                misses += dt * 1e3 > deadline_ms
-                await asyncio.sleep(max(0.0, 0.1 - dt))
-
-        await asyncio.gather(planner(), *(observer(a) for a in range(agents)))
+        await asyncio.gather(*(observer(a) for a in range(agents)))
+        if not await asyncio.to_thread(receive.poll, 60.0):
+            planner.kill()
+            raise RuntimeError("the planner process sent no result")
+        checks = receive.recv()
+        planner.join(timeout=10)
     return {
         "agents": agents,
         "seconds": seconds,
-        "check_all": stats(check_times),
+        "check_all": stats(checks["check_times"]),
         "observe": stats(obs_times),
         "deadline_ms": deadline_ms,
-        "deadline_misses_end_to_end": misses,
-        "conservative_answers": conservative,
-        "errors": errors,
+        "deadline_misses_end_to_end": checks["misses"],
+        "conservative_answers": checks["conservative"],
+        "errors": errors + checks["errors"],
     }
 
 

@@ -17,7 +17,6 @@ from typing import Any
 
 import numpy as np
 
-from service.agents import effective_config
 from service.batch import box_clearances
 from service.confidence import Belief
 from service.engine import BoxTubeSet, FRTSet
@@ -112,11 +111,14 @@ async def answer_states(
     # Cached sets first, without a task each (a planner's check of 50 agents mostly finds them).
     exact = [services.cached_exact(job) for job in jobs]
     late = [i for i, frt in enumerate(exact) if frt is None]
-    # The late ones: only sets that may still make it are waited for, all in one wait.
+    # The late ones: only sets that may still make it are waited for, all in one wait, with the
+    # conservative sets still on their way from their worker (~1 ms each to build here instead).
     futures = {i: services.exact_future(jobs[i], budget) for i in late}
     waiting = {i: f for i, f in futures.items() if f is not None}
-    if waiting and budget > 0:
-        await asyncio.wait({asyncio.wrap_future(f) for f in waiting.values()}, timeout=budget)
+    fallbacks = [services.conservative_on_its_way(jobs[i]) for i in late]
+    awaited = [*waiting.values(), *(f for f in fallbacks if f is not None)]
+    if awaited and budget > 0:
+        await asyncio.wait({asyncio.wrap_future(f) for f in awaited}, timeout=budget)
     for i, future in waiting.items():
         if future.done() and not future.cancelled() and future.exception() is None:
             exact[i] = future.result()
@@ -141,53 +143,79 @@ async def answer_states(
             strict=True,
         )
     )
-    results = [
-        _respond(
-            services,
-            state,
-            exact[i] if exact[i] is not None else conservative[i],
-            exact[i] is None,
-            request,
-            xy,
-            times,
-            distances.get(i),
-        )
-        for i, state in enumerate(states)
-    ]
+    for i, frt in enumerate(exact):
+        if i not in distances:
+            chosen = frt if frt is not None else conservative[i]
+            distances[i] = chosen.clearance(xy, None if origins[i] is None else times - origins[i])
+    results = _respond_all(services, states, exact, request, times, distances)
     services.record_answer_time(time.perf_counter() - start, len(states))
     if time.perf_counter() - arrival > deadline_ms / 1000.0:
         services.metrics.deadline_misses.inc()
     return results
 
 
-def _respond(
+def _respond_all(
     services: Services,
-    state: AgentState,
-    frt: FRTSet,
-    conservative: bool,
+    states: Sequence[AgentState],
+    exact: Sequence[FRTSet | None],
     request: CollisionCheckRequest,
-    xy: np.ndarray,
     times: np.ndarray,
-    distance: np.ndarray | None = None,
-) -> CollisionCheckResponse:
-    """One agent's answer from ``frt`` (``distance``: its clearances before R_col, if known)."""
-    services.metrics.collision_checks.labels("conservative" if conservative else "exact").inc()
-    radius = request.collision_radius
-    if radius is None:
-        radius = float(effective_config(services.settings, state.config)["collision_radius"])
-    t_origin = state.timestamp if request.mode == "time_indexed" else None
-    belief = state.belief
-    # Built from values of the right types: no second validation of every clearance.
-    return CollisionCheckResponse.model_construct(
-        **answer_fields(frt, xy, times, radius, t_origin, distance),
-        agent_id=state.agent_id,
-        mode=request.mode,
-        collision_radius=radius,
-        beta=_beta(tuple(belief["betas"]), tuple(belief["log_probs"])),
-        frt_version=state.frt_version,
-        conservative=conservative,
-        horizon_end=state.timestamp + services.horizon_s(),
+    distances: dict[int, np.ndarray],
+) -> list[CollisionCheckResponse]:
+    """Every agent's answer from its distances to K (``distances[i]``, before R_col), the clearance
+    arithmetic done for all agents at once."""
+    settings = services.settings
+    radii = np.array(
+        [
+            request.collision_radius
+            if request.collision_radius is not None
+            else _agent_radius(settings, state.config)
+            for state in states
+        ],
+        dtype=np.float64,
     )
+    if not states:
+        return []
+    distance = np.stack([np.asarray(distances[i], dtype=np.float64) for i in range(len(states))])
+    distance = distance - radii[:, None]
+    # NaN would be a bug in the geometry; count it as a collision rather than as clear.
+    distance = np.where(np.isnan(distance), -CLEARANCE_LIMIT, distance)
+    clearance = np.clip(distance, -CLEARANCE_LIMIT, CLEARANCE_LIMIT)
+    hit = clearance < 0.0
+    any_hit = hit.any(axis=1)
+    first = hit.argmax(axis=1)
+    rows = clearance.tolist()
+    horizon = services.horizon_s()
+    labels = services.metrics.collision_checks
+    results = []
+    for i, state in enumerate(states):
+        conservative = exact[i] is None
+        labels.labels("conservative" if conservative else "exact").inc()
+        index = int(first[i]) if any_hit[i] else None
+        belief = state.belief
+        # Built from values of the right types: no second validation of every clearance.
+        results.append(
+            CollisionCheckResponse.model_construct(
+                collision=index is not None,
+                first_collision_index=index,
+                first_collision_time=None if index is None else float(times[index]),
+                clearance=rows[i],
+                agent_id=state.agent_id,
+                mode=request.mode,
+                collision_radius=float(radii[i]),
+                beta=_beta(tuple(belief["betas"]), tuple(belief["log_probs"])),
+                frt_version=state.frt_version,
+                conservative=conservative,
+                horizon_end=state.timestamp + horizon,
+            )
+        )
+    return results
+
+
+def _agent_radius(settings: Settings, config: dict[str, Any]) -> float:
+    """The agent's R_col: its own setting, else the server's (as ``effective_config``)."""
+    value = config.get("collision_radius")
+    return float(settings.collision_radius if value is None else value)
 
 
 async def check_agent(

@@ -59,6 +59,8 @@ class Services:
     _loader: asyncio.Task[None] | None = field(default=None, repr=False)
     #: A worker process for conservative sets (None: they are built on threads of this process).
     _conservative_pool: Executor | None = field(default=None, repr=False)
+    #: Conservative sets on their way back from that worker.
+    _conservative_pending: dict[FRTKey, Future[Any]] = field(default_factory=dict, repr=False)
     #: Recent seconds per agent to answer a collision check once its sets are known (moving average).
     _answer_s_per_agent: float = field(default=0.0, repr=False)
 
@@ -204,9 +206,18 @@ class Services:
             self._conservative_failed(exc)
             asyncio.get_running_loop().run_in_executor(None, self.conservative, job)
             return
+        self._conservative_pending[job.key] = handle
         handle.add_done_callback(lambda done: self._conservative_done(job, done))
 
+    def conservative_on_its_way(self, job: FRTJob) -> Future[Any] | None:
+        """The worker's future of ``job``'s conservative set if it is not cached yet, else None:
+        a check can wait for it briefly rather than build it a second time."""
+        if self.conservative_cache.peek(job.key) is not None:
+            return None
+        return self._conservative_pending.get(job.key)
+
     def _conservative_done(self, job: FRTJob, done: Future[Any]) -> None:
+        self._conservative_pending.pop(job.key, None)
         if done.cancelled():
             return
         error = done.exception()

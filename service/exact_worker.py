@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from models.contract import N_INPUTS
 from service.engine import BoxTubeSet, FieldTubeSet, FRTEngine, FRTSet, Pose
 from service.memory import keep_freed_memory
 from service.pipe_pool import PipePool
@@ -110,11 +111,18 @@ def init_worker(model_path: str, nice: int, parent_pid: int) -> None:
 
     _engine = FRTEngine(ValueModel.load(Path(model_path)))
     # The first runtime call and contour are slower than the rest: take them before any request.
-    bounds = np.array([-0.15, -1.5, -0.15, -1.5, 0.15, 1.5, 0.15, 1.5], dtype=np.float64)
-    lo, hi = _engine.card.ranges["v_start"]
     with contextlib.suppress(Exception):  # bounds outside a model's ranges: warm on a real set
-        _engine.exact(Pose(0.0, 0.0, 0.0), min(max(5.0, lo), hi), bounds)
+        warm_up_task(_engine)()
+    if _engine.use_projection:  # the runtime's memory arena sized for the largest sets up front
+        _engine.model.evaluate_projection(np.zeros((4 * _engine.max_nodes, N_INPUTS), np.float32))
     threading.Thread(target=_exit_with_parent, args=(parent_pid,), daemon=True).start()
+
+
+def warm_up_task(engine: FRTEngine) -> ExactTask:
+    """An exact set of a moving car with moderate bounds (its speed inside the model's range)."""
+    bounds = np.array([-0.15, -1.5, -0.15, -1.5, 0.15, 1.5, 0.15, 1.5], dtype=np.float64)
+    lo, hi = engine.card.ranges["v_start"]
+    return ExactTask(Pose(0.0, 0.0, 0.0), min(max(5.0, lo), hi), bounds, engine)
 
 
 def _exit_with_parent(parent_pid: int) -> None:

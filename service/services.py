@@ -7,6 +7,7 @@ the model-dependent routes answer 503 until it is loaded (or for good, if it can
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import time
 from concurrent.futures import BrokenExecutor, Executor, Future
@@ -19,7 +20,7 @@ from starlette.requests import HTTPConnection
 
 from service.engine import FRTEngine, FRTSet, Pose
 from service.errors import ServiceUnavailableError
-from service.exact_worker import ConservativeTask, ExactTask, start_pool
+from service.exact_worker import ConservativeTask, ExactTask, start_pool, warm_up_task
 from service.memory import keep_freed_memory
 from service.metrics import Metrics
 from service.model_runtime import ValueModel
@@ -108,7 +109,7 @@ class Services:
             log.error("model not loaded", extra={"model_path": str(path), "error": str(exc)})
             return
         if self.settings.frt_executor == "process":
-            self._start_worker_processes(path)
+            self._start_worker_processes(path, engine)
         self.engine = engine
         self.model_name = model.card.name
         self.model_error = None
@@ -122,7 +123,7 @@ class Services:
             },
         )
 
-    def _start_worker_processes(self, path: Path) -> None:
+    def _start_worker_processes(self, path: Path, engine: FRTEngine) -> None:
         """Compute exact sets in worker processes (their engines loaded and warmed before the
         server reports ready); if they cannot start, stay on threads and say why."""
         start = time.perf_counter()
@@ -135,6 +136,11 @@ class Services:
                 extra={"error": repr(exc)},
             )
             return
+        # A worker's first result costs ~20-50 ms more than the next ones (the first pickling there
+        # and unpickling here): one per worker before any request.
+        with contextlib.suppress(Exception):
+            for warm in [pool.submit(timed, warm_up_task(engine)) for _ in range(workers)]:
+                warm.result(60.0)
         self.scheduler.use_executor(pool)
         try:  # at the server's priority: checks that find the exact set late need these at once
             self._conservative_pool = start_pool(path, 1, 0)

@@ -43,6 +43,7 @@ train: $(STAMP)
 	$(BIN)/python -m models.export --run runs/frt_unicycle --out models
 	$(BIN)/python -m models.evaluate --model $(MODEL) --calibrate --calibrate-only --write-card
 	$(BIN)/python -m models.projection --model $(MODEL)
+	$(BIN)/python -m models.projection --model $(MODEL) --calibrate-only
 	$(MAKE) evaluate-full
 
 train-smoke: $(STAMP)

@@ -105,11 +105,16 @@ def sample_initial_states(
     """
     n = v_start.shape[0]
     m = initial_set
-    edge = rng.uniform(0, 1, n) < on_boundary
-    radius = m.radius_m * spread * np.where(edge, 1.0, np.sqrt(rng.uniform(0, 1, n)))
+    radius_unit = np.sqrt(rng.uniform(0, 1, n))
     angle = rng.uniform(-np.pi, np.pi, n)
-    heading_unit = np.where(edge, rng.choice([-1.0, 1.0], n), rng.uniform(-1, 1, n))
-    speed_unit = np.where(edge, rng.choice([-1.0, 1.0], n), rng.uniform(-1, 1, n))
+    heading_unit = rng.uniform(-1, 1, n)
+    speed_unit = rng.uniform(-1, 1, n)
+    if on_boundary > 0:  # drawn after the others, so on_boundary = 0 keeps the seeded streams
+        edge = rng.uniform(0, 1, n) < on_boundary
+        radius_unit[edge] = 1.0
+        heading_unit[edge] = np.sign(heading_unit[edge])
+        speed_unit[edge] = np.sign(speed_unit[edge])
+    radius = m.radius_m * spread * radius_unit
     heading = m.heading_margin_rad * spread * heading_unit
     speed = np.clip(v_start + m.speed_margin_mps * spread * speed_unit, 0.0, None)
     return radius * np.cos(angle), radius * np.sin(angle), heading, speed

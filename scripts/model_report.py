@@ -52,6 +52,8 @@ def render(card: dict) -> str:
         f"| mean IoU of the outer bound alone | {s['mean_iou_outer_bound_alone']:.3f} |",
         f"| beyond p95, worst setting [m] | {s['p95_beyond_m_max']:.2f} |",
         f"| beyond p95, mean [m] | {s['p95_beyond_m_mean']:.2f} |",
+        f"| farthest reach beyond the outer bound (union of 0.025 s sweep polygons) [m] | "
+        f"{s.get('beyond_outer_bound_max_m', float('nan')):.3f} |",
         "",
         "## Calibration",
         "",

@@ -32,7 +32,7 @@ import numpy as np
 
 from models.contract import N_INPUTS
 from service.engine import BoxTubeSet, FieldTubeSet, FRTEngine, FRTSet, Pose
-from service.memory import keep_freed_memory
+from service.memory import freeze_start_up_objects, keep_freed_memory
 from service.pipe_pool import PipePool
 
 log = logging.getLogger("frt.exact_worker")
@@ -116,6 +116,7 @@ def init_worker(model_path: str, nice: int, parent_pid: int) -> None:
     if _engine.use_projection:  # the runtime's memory arena sized for the largest sets up front
         _engine.model.evaluate_projection(np.zeros((4 * _engine.max_nodes, N_INPUTS), np.float32))
     threading.Thread(target=_exit_with_parent, args=(parent_pid,), daemon=True).start()
+    freeze_start_up_objects()
 
 
 def warm_up_task(engine: FRTEngine) -> ExactTask:

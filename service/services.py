@@ -16,12 +16,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from starlette.concurrency import run_in_threadpool
 from starlette.requests import HTTPConnection
 
 from service.engine import FRTEngine, FRTSet, Pose
 from service.errors import ServiceUnavailableError
 from service.exact_worker import ConservativeTask, ExactTask, start_pool, warm_up_task
-from service.memory import keep_freed_memory
+from service.memory import freeze_start_up_objects, keep_freed_memory
 from service.metrics import Metrics
 from service.model_runtime import ValueModel
 from service.scheduler import FRTKey, FRTScheduler, LRUCache, timed
@@ -85,6 +86,7 @@ class Services:
     # ------------------------------------------------------------------ lifecycle
     async def start(self) -> None:
         keep_freed_memory()  # a check of 50 agents stacks ~1 MB arrays: no page faults for them
+        await run_in_threadpool(lambda: None)  # the request thread pool's first thread, up front
         self.scheduler.start()
         self._loader = asyncio.create_task(asyncio.to_thread(self.load_model))
 
@@ -113,6 +115,7 @@ class Services:
         self.engine = engine
         self.model_name = model.card.name
         self.model_error = None
+        freeze_start_up_objects()
         self.metrics.model_ready.set(1)
         log.info(
             "model loaded",
@@ -140,7 +143,9 @@ class Services:
         # and unpickling here): one per worker before any request.
         with contextlib.suppress(Exception):
             for warm in [pool.submit(timed, warm_up_task(engine)) for _ in range(workers)]:
-                warm.result(60.0)
+                frt, _ = warm.result(60.0)
+            for kind, t in (("tube", None), ("slice", 1.0)):  # and the first contours drawn here
+                frt.geojson(kind, t, self.settings.collision_radius)
         self.scheduler.use_executor(pool)
         try:  # at the server's priority: checks that find the exact set late need these at once
             self._conservative_pool = start_pool(path, 1, 0)

@@ -97,6 +97,14 @@ def signed_distance(geometry: BaseGeometry, xy: np.ndarray) -> np.ndarray:
     return np.where(inside, -distance, distance)
 
 
+def signed_distances(geometries: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """``signed_distance(geometries[i], xy[i])`` for every i, in one vectorised call each."""
+    inside = shapely.contains_xy(geometries, xy[:, 0], xy[:, 1])
+    distance = shapely.distance(shapely.boundary(geometries), shapely.points(xy))
+    signed = np.where(inside, -distance, distance)
+    return np.where(shapely.is_empty(geometries), np.inf, signed)
+
+
 class FRTSet:
     """K for every slice and the tubes up to each slice, in the human frame.
 
@@ -135,12 +143,9 @@ class FRTSet:
         xy = to_human_frame(np.asarray(xy_world, dtype=float).reshape(-1, 2), self.pose)
         if t_rel is None:
             return signed_distance(self.tube(self.n_slices - 1), xy)
-        index = np.array([self.tube_index(float(t)) for t in np.asarray(t_rel).reshape(-1)])
-        out = np.empty(len(xy))
-        for j in np.unique(index):
-            rows = index == j
-            out[rows] = signed_distance(self.tube(int(j)), xy[rows])
-        return out
+        index = [self.tube_index(float(t)) for t in np.asarray(t_rel).reshape(-1)]
+        tubes = {j: self.tube(j) for j in set(index)}
+        return signed_distances(np.array([tubes[j] for j in index], dtype=object), xy)
 
     def geometry(self, kind: str, t: float | None = None) -> BaseGeometry:
         """K in the human frame: the whole tube, the tube up to t, or the slice nearest t."""

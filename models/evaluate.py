@@ -23,6 +23,7 @@ i.i.d. samples, P(a new reachable state has V > delta) <= eps holds with confide
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import math
 import time
@@ -173,6 +174,15 @@ def compare_cells(reference: np.ndarray, model: np.ndarray) -> dict[str, float]:
     }
 
 
+def without_network(engine: FRTEngine) -> FRTEngine:
+    """The same engine with the network's level at +inf: its set is then the outer-bound
+    construction alone, so comparing the two shows what the network itself adds."""
+    bare = copy.copy(engine)
+    bare.level = math.inf
+    bare.level_per_scale = math.inf if engine.level_per_scale is not None else None
+    return bare
+
+
 def evaluate_setting(
     model: ValueModel,
     engine: FRTEngine,
@@ -185,6 +195,7 @@ def evaluate_setting(
     bounds = setting.bounds()
     roll = simulate(setting.v_start, bounds, n_rollouts, rng)
     frt = engine.exact(Pose(0.0, 0.0, 0.0), setting.v_start, bounds)
+    frt_without = without_network(engine).exact(Pose(0.0, 0.0, 0.0), setting.v_start, bounds)
     ob = engine.outer(setting.v_start, bounds)
     rows = []
     artefacts: dict[str, Any] = {"frt": frt, "rollouts": roll, "outer": ob}
@@ -213,6 +224,10 @@ def evaluate_setting(
         row["outside_outer_m2"] = float(outside.area)
         row["beyond_outer_max_m"] = _farthest_from(outside, outer_tube)
         row["outer_bound_iou"] = compare_cells(reference, model_cells(outer_tube, reference))["iou"]
+        tube_without = frt_without.geometry("tube", t)
+        row["iou_without_network"] = compare_cells(reference, model_cells(tube_without, reference))[
+            "iou"
+        ]
         rows.append(row)
         artefacts[f"reference_{t:g}"] = reference
     return rows, artefacts
@@ -289,13 +304,17 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, float]:
         "p95_beyond_m_mean": float(np.mean([r["beyond_p95_m"] for r in rows])),
         "mean_iou_outer_bound_alone": float(np.mean([r["outer_bound_iou"] for r in rows])),
         "beyond_outer_bound_max_m": max(r.get("beyond_outer_max_m", 0.0) for r in rows),
+        "mean_iou_without_network": float(np.mean([r["iou_without_network"] for r in rows])),
+        "rows_where_the_network_cuts": sum(
+            r["iou"] > r["iou_without_network"] + 1e-9 for r in rows
+        ),
     }
 
 
 def print_table(rows: list[dict[str, Any]]) -> None:
     header = (
         f"{'setting':28s} {'t':>4s} {'recall(states)':>14s} {'recall(cells)':>13s} {'IoU':>6s} "
-        f"{'beyond p95 [m]':>14s} {'IoU outer bound':>15s}"
+        f"{'beyond p95 [m]':>14s} {'IoU outer bound':>15s} {'IoU w/o network':>15s}"
     )
     print(header)
     print("-" * len(header))
@@ -303,7 +322,7 @@ def print_table(rows: list[dict[str, Any]]) -> None:
         print(
             f"{r['setting']:28s} {r['t']:4.1f} {r['recall_states']:14.4f} "
             f"{r['recall_cells']:13.4f} {r['iou']:6.3f} {r['beyond_p95_m']:14.2f} "
-            f"{r['outer_bound_iou']:15.3f}"
+            f"{r['outer_bound_iou']:15.3f} {r['iou_without_network']:15.3f}"
         )
 
 

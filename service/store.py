@@ -117,6 +117,10 @@ class AgentStore(Protocol):
         """Number of live agents."""
         ...
 
+    async def ping(self) -> bool:
+        """Whether the store answers now (readiness); never raises."""
+        ...
+
     async def close(self) -> None:
         """Release connections (nothing to do in memory)."""
         ...
@@ -205,6 +209,9 @@ class InMemoryAgentStore:
         with self._lock:
             self._purge_expired()
             return len(self._entries)
+
+    async def ping(self) -> bool:
+        return True
 
     async def close(self) -> None:
         return None

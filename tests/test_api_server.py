@@ -18,7 +18,7 @@ import pytest
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
-from tests.conftest import LiveServer
+from tests.conftest import LiveServer, _free_port
 from tests.fixtures.analytic_model import growth_rate
 from tests.fixtures.payloads import (
     NARROW_BOUNDS,
@@ -411,3 +411,23 @@ def test_without_a_model_the_service_lives_but_is_not_ready(start_server, tmp_pa
         assert client.get("/v1/model").status_code == 503
         r = client.post("/v1/agents/a/observations", json=observation(1.0))
         assert r.status_code == 503
+
+
+def test_an_unreachable_store_makes_the_service_not_ready(start_server) -> None:
+    """The model loads, but the Redis store does not answer: not ready, and the detail says why."""
+    server = start_server(ready=False, store_url=f"redis://127.0.0.1:{_free_port()}/0")
+    with httpx.Client(base_url=server.url, timeout=10.0) as client:
+        assert client.get("/healthz").status_code == 200
+        deadline = time.monotonic() + 30.0
+        while True:
+            ready = client.get("/readyz")
+            if ready.json()["detail"] == "agent store unreachable" or time.monotonic() > deadline:
+                break
+            time.sleep(0.2)
+        assert ready.status_code == 503, ready.json()
+        assert ready.json() == {
+            "ready": False,
+            "model": ready.json()["model"],
+            "detail": "agent store unreachable",
+        }
+        assert ready.json()["model"] is not None

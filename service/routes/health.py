@@ -1,4 +1,4 @@
-"""Liveness, readiness (model loaded) and Prometheus metrics; never behind auth."""
+"""Liveness, readiness (model loaded, store answering) and Prometheus metrics; never behind auth."""
 
 from __future__ import annotations
 
@@ -19,8 +19,13 @@ async def healthz() -> Health:
 
 @router.get("/readyz", response_model=Readiness, responses={503: {"model": Readiness}})
 async def readyz(services: ServicesDep) -> JSONResponse:
+    """Ready when the model is loaded and the agent store answers (a replica whose Redis is down
+    cannot serve observations, so a load balancer or orchestrator should route around it)."""
+    detail = services.model_error
     ready = services.engine is not None
-    body = Readiness(ready=ready, model=services.model_name, detail=services.model_error)
+    if ready and not await services.store.ping():
+        ready, detail = False, "agent store unreachable"
+    body = Readiness(ready=ready, model=services.model_name, detail=detail)
     return JSONResponse(body.model_dump(), status_code=200 if ready else 503)
 
 

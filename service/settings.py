@@ -20,7 +20,10 @@ class Settings(BaseSettings):
     model_path: Path = DEFAULT_MODEL
     horizon_s: float = HORIZON_S
     beta_low: float = Field(0.03, gt=0.0, lt=1.0)
-    beta_high: float = 1.0
+    #: The top hypothesis is the predictor taken as it is (covariance inflated by 1/beta = 1, paper
+    #: "Confidence estimation and update"); the filter's grid ends there, so no other value is
+    #: accepted (a value that would be ignored must not be settable).
+    beta_high: float = Field(1.0, ge=1.0, le=1.0)
     gamma: float = Field(0.075, gt=0.0, lt=1.0)
     #: Probability per observation that the belief resets to the prior (epsilon-static transition).
     epsilon: float = Field(0.05, ge=0.0, lt=1.0)

@@ -217,3 +217,14 @@ def test_no_model_means_503_on_model_routes(tmp_path: Path) -> None:
         with client.websocket_connect("/v1/stream") as ws:
             ws.send_text('{"id": 1, "op": "get_agent", "agent_id": "a"}')
             assert ws.receive_json()["error"]["status"] in (404, 503)
+
+
+def test_beta_high_other_than_one_is_refused_not_ignored() -> None:
+    """The filter's top hypothesis is fixed at 1: a setting that would be ignored must not start."""
+    from pydantic import ValidationError
+
+    from service.settings import Settings
+
+    assert Settings(beta_high=1).beta_high == 1.0
+    with pytest.raises(ValidationError, match="beta_high"):
+        Settings(beta_high=0.9)

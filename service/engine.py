@@ -246,19 +246,6 @@ class SliceField:
     i0: int
     values: np.ndarray  # [ny, nx]
 
-    def window(self, k0: int, i0: int, shape: tuple[int, int]) -> np.ndarray:
-        """The values on another window of the lattice (+inf where this field has none)."""
-        out = np.full(shape, _FAR, dtype=np.float32)
-        ny, nx = self.values.shape
-        dk0, di0 = max(self.k0, k0), max(self.i0, i0)
-        dk1 = min(self.k0 + ny, k0 + shape[0])
-        di1 = min(self.i0 + nx, i0 + shape[1])
-        if dk1 > dk0 and di1 > di0:
-            out[dk0 - k0 : dk1 - k0, di0 - i0 : di1 - i0] = self.values[
-                dk0 - self.k0 : dk1 - self.k0, di0 - self.i0 : di1 - self.i0
-            ]
-        return out
-
     def contour(self, lattice: Lattice) -> BaseGeometry:
         ny, nx = self.values.shape
         xs, ys = lattice.xs(self.i0, self.i0 + nx), lattice.ys(self.k0, self.k0 + ny)
@@ -278,9 +265,6 @@ OUTER_WINDOW_S = 0.1
 #: (a small early set on a lattice sized for the late, large ones): its outer polygon stands for K.
 MIN_NODES_INSIDE = 16
 
-#: Stands for "+inf" in a contoured field (contourpy needs finite values).
-_FAR = FAR
-
 
 def running_minimum(fields: list[SliceField]) -> SliceField:
     """The pointwise minimum of several windowed fields, on the window covering them all."""
@@ -288,7 +272,7 @@ def running_minimum(fields: list[SliceField]) -> SliceField:
     i0 = min(f.i0 for f in fields)
     k1 = max(f.k0 + f.values.shape[0] for f in fields)
     i1 = max(f.i0 + f.values.shape[1] for f in fields)
-    out = np.full((k1 - k0, i1 - i0), _FAR, dtype=np.float32)
+    out = np.full((k1 - k0, i1 - i0), FAR, dtype=np.float32)
     for f in fields:
         ny, nx = f.values.shape
         window = out[f.k0 - k0 : f.k0 - k0 + ny, f.i0 - i0 : f.i0 - i0 + nx]
@@ -628,7 +612,7 @@ class FRTEngine:
         )
         clip[0] = np.hypot(windows.xs[0][None, :], windows.ys[0][:, None]) - self.radius_m
         interval = interval64.astype(np.float32)
-        interval[0] = _FAR
+        interval[0] = FAR
         inside = (clip <= 0) & valid
         inside[0] = False
         clip32 = clip.astype(np.float32)
@@ -639,19 +623,19 @@ class FRTEngine:
         field = clip32
         at = np.nonzero(inside)
         field[at] = np.maximum(values - levels[at[0]], field[at])
-        field[~valid] = _FAR
+        field[~valid] = FAR
         # Grid dilation by how far a car moves in half a slice, plus one node step for the node
         # sampling.
         speed = span_reduce(block_reduce(ob.sweep_speed_max, k, np.maximum), np.maximum)
         speed[0] = 0.0
         grown = dilate_discs(field, speed * self.slice_dt / 2 / step + 1.0)
-        grown[~valid] = _FAR
+        grown[~valid] = FAR
         sweep_stack = np.empty_like(field)
         sweep_stack[0] = field[0]
         for j in range(1, self.n_slices):
             near = np.minimum(grown[j], windows.shifted(grown, j - 1, j))
             np.maximum(near, interval[j], out=sweep_stack[j])
-        sweep_stack[~valid] = _FAR
+        sweep_stack[~valid] = FAR
         instant = [
             SliceField(int(windows.k0[j]), int(windows.i0[j]), windows.crop(field, j))
             for j in range(self.n_slices)

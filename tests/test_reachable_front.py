@@ -22,7 +22,7 @@ import pytest
 import shapely
 
 from models.contract import COL, HORIZON_S, INITIAL_SET, N_INPUTS
-from models.eval_settings import SETTINGS
+from models.eval_settings import SETTINGS, Setting, const
 from models.evaluate import simulate
 from models.outer_bound import outer_bound
 from models.rollout import rk4_rollout, sample_control_schedules, sample_initial_states
@@ -43,8 +43,7 @@ def _bounds(name: str) -> tuple[float, float, float, float]:
 
 
 def _bound_columns(w: float, a_lo: float, a_hi: float) -> np.ndarray:
-    # contract order: u1_min_start, u2_min_start, u1_min_end, u2_min_end, then the maxima
-    return np.array([-w, a_lo, -w, a_lo, w, a_hi, w, a_hi], dtype=float)
+    return Setting("constant", 0.0, const(-w, w), const(a_lo, a_hi)).bounds()
 
 
 def extreme_point(v_start: float, w: float, a_hi: float, phi: float, t_end: float) -> np.ndarray:

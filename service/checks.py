@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from service.agents import effective_config
 from service.batch import box_clearances
 from service.confidence import Belief
 from service.engine import BoxTubeSet, FRTSet
@@ -54,30 +55,32 @@ def answer(
 
 
 def answer_fields(
-    frt: FRTSet,
-    xy: np.ndarray,
-    times: np.ndarray,
-    collision_radius: float,
-    t_origin: float | None,
-    distance_to_k: np.ndarray | None = None,
+    frt: FRTSet, xy: np.ndarray, times: np.ndarray, collision_radius: float, t_origin: float | None
 ) -> dict[str, Any]:
-    """The fields of :class:`CollisionAnswer` for points ``xy`` at ``times`` (see :func:`answer`);
-    ``distance_to_k``: ``frt.clearance`` of those points, if computed already."""
-    if distance_to_k is None:
-        t_rel = None if t_origin is None else times - t_origin
-        distance_to_k = frt.clearance(xy, t_rel)
-    distance = np.asarray(distance_to_k, dtype=np.float64) - collision_radius
+    """The fields of :class:`CollisionAnswer` for points ``xy`` at ``times`` (see :func:`answer`)."""
+    t_rel = None if t_origin is None else times - t_origin
+    clearance, first = clearance_rows(
+        np.asarray(frt.clearance(xy, t_rel), dtype=np.float64)[None, :],
+        np.array([collision_radius], dtype=np.float64),
+    )
+    index = int(first[0]) if first[0] >= 0 else None
+    return {
+        "collision": index is not None,
+        "first_collision_index": index,
+        "first_collision_time": None if index is None else float(times[index]),
+        "clearance": clearance[0].tolist(),
+    }
+
+
+def clearance_rows(distance_to_k: np.ndarray, radii: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distances [A, N] of A agents' points to K and their R_col [A] -> clearances to C [A, N],
+    clipped to +-CLEARANCE_LIMIT, and each row's first colliding point (-1 if none)."""
+    distance = distance_to_k - radii[:, None]
     # NaN would be a bug in the geometry; count it as a collision rather than as clear.
     distance = np.where(np.isnan(distance), -CLEARANCE_LIMIT, distance)
     clearance = np.clip(distance, -CLEARANCE_LIMIT, CLEARANCE_LIMIT)
-    hits = np.flatnonzero(clearance < 0.0)
-    first = int(hits[0]) if hits.size else None
-    return {
-        "collision": first is not None,
-        "first_collision_index": first,
-        "first_collision_time": None if first is None else float(times[first]),
-        "clearance": clearance.tolist(),
-    }
+    hit = clearance < 0.0
+    return clearance, np.where(hit.any(axis=1), hit.argmax(axis=1), -1)
 
 
 @lru_cache(maxsize=4096)
@@ -169,21 +172,16 @@ def _respond_all(
         [
             request.collision_radius
             if request.collision_radius is not None
-            else _agent_radius(settings, state.config)
+            else float(effective_config(settings, state.config)["collision_radius"])
             for state in states
         ],
         dtype=np.float64,
     )
     if not states:
         return []
-    distance = np.stack([np.asarray(distances[i], dtype=np.float64) for i in range(len(states))])
-    distance = distance - radii[:, None]
-    # NaN would be a bug in the geometry; count it as a collision rather than as clear.
-    distance = np.where(np.isnan(distance), -CLEARANCE_LIMIT, distance)
-    clearance = np.clip(distance, -CLEARANCE_LIMIT, CLEARANCE_LIMIT)
-    hit = clearance < 0.0
-    any_hit = hit.any(axis=1)
-    first = hit.argmax(axis=1)
+    clearance, first = clearance_rows(
+        np.stack([np.asarray(distances[i], dtype=np.float64) for i in range(len(states))]), radii
+    )
     rows = clearance.tolist()
     horizon = services.horizon_s()
     labels = services.metrics.collision_checks
@@ -191,7 +189,7 @@ def _respond_all(
     for i, state in enumerate(states):
         conservative = exact[i] is None
         labels.labels("conservative" if conservative else "exact").inc()
-        index = int(first[i]) if any_hit[i] else None
+        index = int(first[i]) if first[i] >= 0 else None
         belief = state.belief
         # Built from values of the right types: no second validation of every clearance.
         results.append(
@@ -210,12 +208,6 @@ def _respond_all(
             )
         )
     return results
-
-
-def _agent_radius(settings: Settings, config: dict[str, Any]) -> float:
-    """The agent's R_col: its own setting, else the server's (as ``effective_config``)."""
-    value = config.get("collision_radius")
-    return float(settings.collision_radius if value is None else value)
 
 
 async def check_agent(

@@ -179,21 +179,11 @@ class FRTScheduler:
         self._dispatch()
         return future
 
-    async def wait(
-        self,
-        key: FRTKey,
-        compute: Callable[[], Any],
-        timeout_s: float,
-        *,
-        wait_if_queued: bool = True,
-    ) -> Any | None:
+    async def wait(self, key: FRTKey, compute: Callable[[], Any], timeout_s: float) -> Any | None:
         """The exact set for ``key`` if it is (or becomes) ready within ``timeout_s``, else ``None``.
 
-        With ``wait_if_queued=False`` a set that is still queued behind others (submitted earlier,
-        not yet started) is not waited for: it would rarely finish within a collision check's
-        deadline; nor is a running one that, at the recent pace of the workers, would not finish
-        within ``timeout_s`` (on a saturated machine a check would otherwise spend its wait on sets
-        that come too late). Never cancels the computation: a late result still lands in the cache.
+        Never cancels the computation: a late result still lands in the cache. (Collision checks
+        use :meth:`waitable`, which skips sets that cannot make their deadline.)
         """
         cached = self.lookup(key)
         if cached is not None:
@@ -203,11 +193,6 @@ class FRTScheduler:
             under_way = key in self._pending
         self._metrics.frt_cache.labels("pending" if under_way else "miss").inc()
         submitted = self.submit(key, compute)
-        if under_way and not wait_if_queued:
-            if not (submitted.running() or submitted.done()):
-                return None
-            if self.expected_remaining_s(key) > timeout_s:
-                return None
         if submitted.cancelled():
             return None
         future = asyncio.wrap_future(submitted)

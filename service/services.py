@@ -187,16 +187,9 @@ class Services:
         (``FRTScheduler.waitable``; starts the set if nobody has)."""
         return self.scheduler.waitable(job.key, self.exact_task(job), timeout_s)
 
-    async def exact_within(
-        self, job: FRTJob, timeout_s: float, *, wait_if_queued: bool = True
-    ) -> FRTSet | None:
+    async def exact_within(self, job: FRTJob, timeout_s: float) -> FRTSet | None:
         """The exact set if it is ready within ``timeout_s`` (starting it if nobody has), else None."""
-        return await self.scheduler.wait(
-            job.key,
-            self.exact_task(job),
-            timeout_s,
-            wait_if_queued=wait_if_queued,
-        )
+        return await self.scheduler.wait(job.key, self.exact_task(job), timeout_s)
 
     def exact_task(self, job: FRTJob) -> ExactTask:
         """``engine.exact`` for ``job``: on this engine in a thread, on its own in a worker process."""

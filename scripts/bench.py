@@ -13,7 +13,8 @@ it with httpx from this process. Prints medians and p99 for:
 4. sustained: 50 agents observed at 2 Hz while a planner (a process of its own) checks all of
    them at 10 Hz with one multi-agent request per round; a round misses its deadline when its
    end-to-end time exceeds the request's ``deadline_ms`` (20 ms);
-5. the exact set alone, in-process, for a moving and for a parked car;
+5. the exact set alone, in-process, for a moving and for a parked car (for the moving car also with
+   the projection network evaluated at every lattice node, i.e. without ``service.refine``);
 
 and, side by side in the same run, the naive approach: building the set by evaluating the full
 network on a dense grid for every query (no cache, no distilled projection).
@@ -298,17 +299,26 @@ def bench_exact_in_process(model: Path, n: int) -> dict[str, dict]:
     from service.engine import FRTEngine, Pose
     from service.model_runtime import ValueModel
 
-    engine = FRTEngine(ValueModel.load(model, threads=1))
+    value_model = ValueModel.load(model, threads=1)
+    engine = FRTEngine(value_model)
+    # The same set with the projection evaluated at every node (service.refine off), interleaved
+    # with the served engine's runs so that both see the same machine.
+    full = FRTEngine(value_model, refine=False)
     out = {}
     for name, (v_start, bounds) in EXACT_CASES.items():
         b = np.array(bounds)
-        engine.exact(Pose(0.0, 0.0, 0.0), v_start, b)  # warm-up
-        times = []
+        variants = (
+            {name: engine, f"{name}_every_node": full} if "moving" in name else {name: engine}
+        )
+        times: dict[str, list[float]] = {key: [] for key in variants}
+        for e in variants.values():
+            e.exact(Pose(0.0, 0.0, 0.0), v_start, b)  # warm-up
         for _ in range(n):
-            t0 = time.perf_counter()
-            engine.exact(Pose(0.0, 0.0, 0.0), v_start, b)
-            times.append(time.perf_counter() - t0)
-        out[name] = stats(times)
+            for key, e in variants.items():
+                t0 = time.perf_counter()
+                e.exact(Pose(0.0, 0.0, 0.0), v_start, b)
+                times[key].append(time.perf_counter() - t0)
+        out.update({key: stats(values) for key, values in times.items()})
     return out
 
 

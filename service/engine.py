@@ -46,6 +46,7 @@ from service.field_stack import (
     span_reduce,
 )
 from service.model_runtime import ValueModel
+from service.refine import coarse_to_fine
 
 #: Slice spacing when the distilled projection network is present (its level is calibrated on the
 #: 0.05 s grid, which contains this one).
@@ -431,8 +432,11 @@ class FRTEngine:
         speed_samples: int = 3,
         outer_step_s: float = 0.025,
         projection: bool = True,
+        refine: bool = True,
     ) -> None:
         self.model = model
+        #: Evaluate the projection coarse-to-fine (``service.refine``).
+        self.refine = refine
         self.card = model.card
         self.horizon = self.card.horizon_s
         self.use_projection = projection and model.projection is not None
@@ -618,8 +622,10 @@ class FRTEngine:
         clip32 = clip.astype(np.float32)
         coarse = ((clip32 <= 0) & valid).sum(axis=(1, 2)) < MIN_NODES_INSIDE
 
-        values, evaluations = self._values_inside(windows, inside, v_start, bounds, ob)
         levels = self.levels(ob, rows)
+        values, evaluations = self._values_inside(
+            windows, inside, v_start, bounds, ob, levels, step
+        )
         field = clip32
         at = np.nonzero(inside)
         field[at] = np.maximum(values - levels[at[0]], field[at])
@@ -673,14 +679,26 @@ class FRTEngine:
         v_start: float,
         bounds: np.ndarray,
         ob: OuterBound,
+        levels: np.ndarray,
+        step: float,
     ) -> tuple[np.ndarray, int]:
         """W (or the stencil minimum of V) at the nodes inside each slice's outer polygon
-        (``inside`` [J, H, W]), in the order of ``np.nonzero(inside)``."""
+        (``inside`` [J, H, W]), in the order of ``np.nonzero(inside)``; with ``refine``, -inf at
+        the nodes that ``service.refine`` shows cannot be cut (the set can only grow)."""
         times = np.arange(self.n_slices) * self.slice_dt
+
+        def projected(mask: np.ndarray) -> np.ndarray:
+            jj, hh, ww = np.nonzero(mask)
+            px, py = windows.xs[jj, ww], windows.ys[jj, hh]
+            return self.projected_value(times[jj], px, py, v_start, bounds)[0]
+
+        if self.use_projection and self.refine:
+            refined = coarse_to_fine(inside, windows.k0, windows.i0, step, levels, projected)
+            return refined.values, refined.evaluated
+        if self.use_projection:  # one runtime call for every slice
+            return projected(inside), int(inside.sum())
         jj, hh, ww = np.nonzero(inside)
         px, py = windows.xs[jj, ww], windows.ys[jj, hh]
-        if self.use_projection:  # one runtime call for every slice
-            return self.projected_value(times[jj], px, py, v_start, bounds)
         values, evaluations = np.zeros(len(jj), dtype=np.float32), 0
         for j in np.unique(jj):
             rows = jj == j

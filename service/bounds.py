@@ -402,6 +402,10 @@ def validate_prediction(
         raise PredictionError(
             "prediction.cov", f"has {len(mats)} steps but prediction.mean has {len(rows)}"
         )
+    valid = _valid_at_once(rows, mats)
+    if valid is not None:
+        return valid
+    # Something is wrong: step by step, to name the first offending field.
     mean_arr = np.stack([_array(r, (2,), f"prediction.mean[{k}]") for k, r in enumerate(rows)])
     cov_list = []
     for k, m in enumerate(mats):
@@ -416,6 +420,30 @@ def validate_prediction(
             raise PredictionError(field, "must be positive definite")
         cov_list.append(s)
     return mean_arr, np.stack(cov_list)
+
+
+def _valid_at_once(rows: list[Any], mats: list[Any]) -> tuple[np.ndarray, np.ndarray] | None:
+    """:func:`validate_prediction`'s checks and result for all steps at once (the same element-wise
+    arithmetic, one eigvalsh call for the stack: ~4x faster for a valid prediction), or None if
+    any check fails (then the step-by-step checks find and name it)."""
+    try:
+        mean = np.asarray(rows, dtype=np.float64)
+        cov = np.asarray(mats, dtype=np.float64)
+    except (TypeError, ValueError):
+        return None
+    n = len(rows)
+    if mean.shape != (n, 2) or cov.shape != (n, 2, 2):
+        return None
+    if not (np.isfinite(mean).all() and np.isfinite(cov).all()):
+        return None
+    scale = np.maximum(np.abs(cov[:, 0, 0]), np.abs(cov[:, 1, 1]))
+    if (np.abs(cov[:, 0, 1] - cov[:, 1, 0]) > SYMMETRY_RTOL * scale).any():
+        return None
+    cov = 0.5 * (cov + cov.transpose(0, 2, 1))
+    eig = np.linalg.eigvalsh(cov)
+    if not ((eig[:, 1] > 0.0) & (eig[:, 0] > PD_RTOL * eig[:, 1])).all():
+        return None
+    return mean, cov
 
 
 def validate_filter_params(

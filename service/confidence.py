@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -46,15 +47,22 @@ def hypotheses(beta_low: float, n: int = 2) -> np.ndarray:
         raise ValueError(f"beta_low must lie in (0, 1), got {beta_low!r}")
     if n < 2:
         raise ValueError(f"need at least two hypotheses, got n={n}")
+    return _grid(float(beta_low), n).copy()
+
+
+@lru_cache(maxsize=256)
+def _grid(beta_low: float, n: int) -> np.ndarray:
+    """:func:`hypotheses` once per (beta_low, n): geomspace is ~40 us, and every observation asks."""
     betas = np.geomspace(beta_low, 1.0, n)
     betas[0], betas[-1] = beta_low, 1.0
+    betas.flags.writeable = False
     return betas
 
 
 def _normalise(log_probs: np.ndarray) -> np.ndarray:
     """Log-probabilities shifted so that they sum to one (a stable log-sum-exp), then floored."""
-    top = np.max(log_probs)
-    lse = top + np.log(np.sum(np.exp(log_probs - top)))
+    top = log_probs.max()
+    lse = top + np.log(np.exp(log_probs - top).sum())
     if abs(lse) < 1e-13:  # already normalised: keep it bit-identical (idempotent storage)
         lse = 0.0
     return np.maximum(log_probs - lse, LOG_PROB_FLOOR)
@@ -76,9 +84,11 @@ class Belief:
         log_probs = np.array(self.log_probs, dtype=np.float64)
         if betas.ndim != 1 or betas.size < 2 or log_probs.shape != betas.shape:
             raise ValueError("betas and log_probs must be 1-D arrays of the same length >= 2")
-        if not (np.all(np.isfinite(betas)) and np.all(betas > 0) and np.all(np.diff(betas) > 0)):
+        # Array methods rather than np.all/np.any: the same reductions without their wrappers
+        # (a Belief is built several times per observation).
+        if not (np.isfinite(betas).all() and (betas > 0).all() and (betas[1:] > betas[:-1]).all()):
             raise ValueError("betas must be positive, finite and strictly ascending")
-        if np.any(np.isnan(log_probs)) or not np.any(np.isfinite(log_probs)):
+        if np.isnan(log_probs).any() or not np.isfinite(log_probs).any():
             raise ValueError("log_probs must be numbers with at least one finite entry")
         log_probs = _normalise(log_probs)
         betas.flags.writeable = False

@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from functools import lru_cache
 from typing import Any, Literal
 
@@ -77,11 +77,15 @@ class ControlBounds:
 
     def as_array(self) -> np.ndarray:
         """The eight values as float64, in contract order."""
-        return np.array(list(asdict(self).values()), dtype=np.float64)
+        return np.array([getattr(self, name) for name in _BOUND_FIELDS], dtype=np.float64)
 
     def to_dict(self) -> dict[str, float]:
         """Field name -> value, in contract order (JSON-safe)."""
         return {k: float(v) for k, v in asdict(self).items()}
+
+
+#: ControlBounds' fields in order (``dataclasses.asdict`` deep-copies: ~0.1 ms per observation).
+_BOUND_FIELDS = tuple(f.name for f in fields(ControlBounds))
 
 
 # --- gamma trimming ---------------------------------------------------------------------------
@@ -342,8 +346,7 @@ def control_bounds(
     :func:`trim_intervals`, :func:`clip_intervals`, :func:`fit_bounds`.
     """
     lo, hi = trim_intervals(mean, cov, beta, gamma)
-    lo, hi = clip_intervals(lo, hi, limits)
-    return fit_bounds(lo, hi, dt, horizon=horizon, method=method, limits=limits)
+    return fit_bounds(lo, hi, dt, horizon=horizon, method=method, limits=limits)  # clips first
 
 
 # --- validation -------------------------------------------------------------------------------

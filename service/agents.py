@@ -121,6 +121,7 @@ async def observe(
     previous = await services.store.get(agent_id)
     if previous is not None and request.timestamp <= previous.timestamp:
         raise StaleTimestampError(agent_id, request.timestamp, previous.timestamp)
+    built: list[Belief] = []  # the belief of each state built, the last one last
 
     def build(prior: AgentState | None, mean: np.ndarray, cov: np.ndarray) -> AgentState:
         overrides = {**(prior.config if prior else {}), **patch}
@@ -137,6 +138,7 @@ async def observe(
             mean, cov, dt, belief.beta, config["gamma"], config["bounds_fit"], settings
         )
         check_ranges(engine, request.state.speed, bounds, bounds_field="prediction")
+        built.append(belief)
         return AgentState(
             agent_id=agent_id,
             timestamp=request.timestamp,
@@ -166,7 +168,9 @@ async def observe(
     job = services.job_for(state)
     services.submit(job)
     services.prepare_conservative(job)
-    belief = Belief.from_dict(state.belief)
+    # The belief just built, unless the stored one is another (from_dict would give the same arrays:
+    # a stored belief is normalised already, and normalising it again changes no bit).
+    belief = built[-1] if built[-1].to_dict() == state.belief else Belief.from_dict(state.belief)
     probs, _ = belief_out(belief)
     return ObservationResponse(
         agent_id=agent_id,

@@ -7,6 +7,9 @@
   These guard against the failure that matters, an under-approximated set.
 * An exact lower bound from the heading: theta' = u1 does not depend on the state, so
   |theta(0)| >= distance from theta(t) to the interval of reachable heading changes.
+* Optionally, proven lower bounds from heading and speed corridors (models/corridor_bound.py) at
+  precomputed states around the reachable set: where V must be high, which the DP upper bounds
+  (pushing V down at reachable states) and a small PDE weight leave the network free to ignore.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ class LossWeights:
     upper: float = 10.0
     lower: float = 1.0
     upper_margin_m: float = 0.05
+    corridor: float = 0.0
 
 
 def hjb_residual(net: torch.nn.Module, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -59,12 +63,19 @@ def training_losses(
     pde_points: torch.Tensor,
     rollout_upper_bound: torch.Tensor,
     weights: LossWeights,
+    bounded: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> dict[str, torch.Tensor]:
-    """Losses on a batch whose first ``len(rollout_upper_bound)`` rows are rollout endpoints."""
+    """Losses on a batch whose first ``len(rollout_upper_bound)`` rows are rollout endpoints;
+    ``bounded`` = (states, proven lower bounds on V there) for the corridor hinge."""
     value, residual = hjb_residual(net, pde_points)
     pde = (residual**2).mean()
     lower = torch.relu(heading_lower_bound(pde_points) - value).mean()
     rollout_value = value[: rollout_upper_bound.shape[0]]
     upper = torch.relu(rollout_value - rollout_upper_bound + weights.upper_margin_m).mean()
     total = weights.pde * pde + weights.upper * upper + weights.lower * lower
-    return {"total": total, "pde": pde, "upper": upper, "lower": lower}
+    corridor = torch.zeros(())
+    if bounded is not None and weights.corridor > 0:
+        states, lower_bound = bounded
+        corridor = torch.relu(lower_bound - net(states)[:, 0]).mean()
+        total = total + weights.corridor * corridor
+    return {"total": total, "pde": pde, "upper": upper, "lower": lower, "corridor": corridor}

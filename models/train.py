@@ -11,6 +11,7 @@ import argparse
 import csv
 import json
 import math
+import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -39,6 +40,12 @@ class TrainConfig:
     curriculum_fraction: float = 0.3
     checkpoint_every: int = 500
     weights: dict = field(default_factory=dict)
+    #: A run's checkpoint to start from (weights, optimiser and step), when the run has none.
+    init_checkpoint: str | None = None
+    #: .npz of states with proven lower bounds on V (``python -m models.corridor_bound``) for the
+    #: corridor hinge (weight ``weights["corridor"]``), and how many of them per step.
+    corridor_data: str | None = None
+    corridor_per_step: int = 2048
 
     @classmethod
     def load(cls, path: Path) -> TrainConfig:
@@ -75,6 +82,8 @@ def train(config: TrainConfig, out: Path, max_minutes: float | None = None) -> P
     rng = np.random.default_rng(config.seed)
     step, elapsed_before = 0, 0.0
     checkpoint = out / "checkpoint.pt"
+    if not checkpoint.exists() and config.init_checkpoint:
+        shutil.copyfile(config.init_checkpoint, checkpoint)
     if checkpoint.exists():
         state = torch.load(checkpoint, weights_only=True)
         net.load_state_dict(state["model"])
@@ -84,6 +93,13 @@ def train(config: TrainConfig, out: Path, max_minutes: float | None = None) -> P
         rng = np.random.default_rng([config.seed, step])
         print(f"resumed from {checkpoint} at step {step}")
     weights = config.loss_weights()
+    bounded_data = None
+    if config.corridor_data and weights.corridor > 0:
+        with np.load(config.corridor_data) as data:  # arrays only: no pickles
+            bounded_data = (
+                torch.as_tensor(data["x"], dtype=torch.float32),
+                torch.as_tensor(data["lower_bound"], dtype=torch.float32),
+            )
     log_path = out / "log.csv"
     new_log = not log_path.exists() or step == 0
     if not new_log:  # drop rows logged after the checkpoint we resume from
@@ -93,7 +109,9 @@ def train(config: TrainConfig, out: Path, max_minutes: float | None = None) -> P
     log_file = log_path.open("w" if new_log else "a", newline="")
     log = csv.writer(log_file)
     if new_log:
-        log.writerow(["step", "elapsed_s", "lr", "t_max", "total", "pde", "upper", "lower"])
+        log.writerow(
+            ["step", "elapsed_s", "lr", "t_max", "total", "pde", "upper", "lower", "corridor"]
+        )
 
     def save() -> None:
         tmp = out / "checkpoint.tmp"
@@ -115,11 +133,16 @@ def train(config: TrainConfig, out: Path, max_minutes: float | None = None) -> P
         for group in optimiser.param_groups:
             group["lr"] = learning_rate(step, config)
         batch = sample_training_batch(config.params_per_batch, config.points_per_param, t_max, rng)
+        bounded = None
+        if bounded_data is not None:
+            pick = torch.as_tensor(rng.integers(0, len(bounded_data[1]), config.corridor_per_step))
+            bounded = (bounded_data[0][pick], bounded_data[1][pick])
         losses = training_losses(
             net,
             torch.as_tensor(batch.pde_points, dtype=torch.float32),
             torch.as_tensor(batch.rollout_upper_bound, dtype=torch.float32),
             weights,
+            bounded,
         )
         optimiser.zero_grad(set_to_none=True)
         losses["total"].backward()
@@ -133,7 +156,7 @@ def train(config: TrainConfig, out: Path, max_minutes: float | None = None) -> P
             elapsed = elapsed_before + time.monotonic() - started
             log.writerow(
                 [step, f"{elapsed:.1f}", f"{learning_rate(step, config):.3g}", f"{t_max:.2f}"]
-                + [f"{values[k]:.5g}" for k in ("total", "pde", "upper", "lower")]
+                + [f"{values[k]:.5g}" for k in ("total", "pde", "upper", "lower", "corridor")]
             )
             log_file.flush()
         if step % config.checkpoint_every == 0 or step == config.steps:

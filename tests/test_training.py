@@ -50,6 +50,46 @@ def test_resume_continues_from_the_checkpoint(smoke_run, tmp_path: Path) -> None
     assert steps == sorted(steps) and steps[-1] == 30
 
 
+def test_the_corridor_hinge_raises_the_value_where_it_is_bounded(smoke_run, tmp_path: Path) -> None:
+    """The hinge is relu(bound - V) on states with a proven lower bound on V; a step on it alone
+    lifts V there. A run started from the smoke run's checkpoint with it configured logs it."""
+    config, out = smoke_run
+    from models.corridor_bound import sample_bounded_states
+    from models.loss import LossWeights, training_losses
+
+    x, bound = sample_bounded_states(8, 32, np.random.default_rng(1))
+    inputs, lower = torch.as_tensor(x, dtype=torch.float32), torch.as_tensor(bound).float()
+    net = ValueNetwork(config.network_config())
+    net.load_state_dict(torch.load(out / "checkpoint.pt", weights_only=True)["model"])
+    weights = LossWeights(pde=0.0, upper=0.0, lower=0.0, corridor=1.0)
+    losses = training_losses(net, inputs[:4], torch.zeros(1), weights, (inputs, lower))
+    assert torch.isfinite(losses["total"])
+    with torch.no_grad():
+        before = net(inputs)[:, 0]
+    assert float(losses["corridor"]) == pytest.approx(float(torch.relu(lower - before).mean()))
+    losses["total"].backward()
+    with torch.no_grad():
+        for p in net.parameters():
+            p -= 1e-3 * p.grad
+        after = net(inputs)[:, 0]
+    violated = lower > before
+    assert violated.any() and float((after - before)[violated].mean()) > 0
+
+    data = tmp_path / "bounds.npz"
+    np.savez(data, x=x.astype(np.float32), lower_bound=bound.astype(np.float32))
+    tuned = dataclasses.replace(
+        config,
+        steps=config.steps + 10,
+        init_checkpoint=str(out / "checkpoint.pt"),
+        corridor_data=str(data),
+        corridor_per_step=64,
+        weights={**config.weights, "corridor": 1.0},
+    )
+    train(tuned, tmp_path / "tuned")
+    rows = list(csv.DictReader((tmp_path / "tuned" / "log.csv").open()))
+    assert int(rows[0]["step"]) > config.steps and float(rows[0]["corridor"]) > 0
+
+
 def test_boundary_condition_is_exact_at_t0(smoke_run) -> None:
     config, out = smoke_run
     net = ValueNetwork(config.network_config())

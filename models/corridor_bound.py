@@ -1,0 +1,257 @@
+"""A sound lower bound on the value function from heading and speed corridors.
+
+V(t, x) > c exactly when no trajectory from the sub-level set {l <= c} of the initial set reaches
+x at time t (set semantics, docs/model.md). This module proves that for given states, which gives
+training a signal the PDE residual alone conveys slowly: *where the network must be high*.
+
+Why it cuts what the interval outer bound (models/outer_bound.py) cannot: a state fixes the final
+heading theta_f and speed v_f. theta' = u1 and v' = u2 do not depend on the position, so every
+trajectory that ends there has, at every s <= t, a heading inside the *corridor*
+
+    [max(-eps_c + U1_lo(s), theta_f - (U1_hi(t) - U1_hi(s))),
+     min( eps_c + U1_hi(s), theta_f - (U1_lo(t) - U1_lo(s)))]
+
+(U1_lo, U1_hi the integrals of the interpolated u1 bounds, eps_c the heading margin of {l <= c})
+and likewise a speed inside the intersection of the forward stop-rule interval and the backward
+one. The position is p(t) = p(0) + integral of v (cos theta, sin theta), so in any direction d its
+component is at most r + c + integral of max over the corridors of v cos(theta - phi_d): a convex
+polygon *per final heading and speed*. A car that ends heading backwards must have turned while it
+moved forwards, so the union over headings has the notch behind the car that no single convex
+bound has (docs/model.md, "What it buys").
+
+Every bound is taken outward: corridors are hulls over each sub-interval padded by the largest
+bulge of their quadratic ends, the speed's backward lower bound ignores braking, an unwrapped final
+heading is tried at every 2 pi shift. States the bound cannot exclude even at c = 0 get -inf.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from models.contract import COL, HORIZON_S, INITIAL_SET, InitialSet
+from models.dynamics import heading_interval, interpolate_bounds, speed_change_interval
+from models.outer_bound import cos_range
+
+#: Support directions of the per-state position polygon.
+DIRECTIONS = np.arange(16) * (2 * math.pi / 16)
+
+
+def _hull(ends: np.ndarray, pad: np.ndarray, upper: bool) -> np.ndarray:
+    """Outward hull over each sub-interval of a function known at its nodes [N, S + 1], with
+    curvature padding ``pad`` [N, 1] (a quadratic bulges by at most |f''| h^2 / 8 between nodes)."""
+    if upper:
+        return np.maximum(ends[:, :-1], ends[:, 1:]) + pad
+    return np.minimum(ends[:, :-1], ends[:, 1:]) - pad
+
+
+def _stop_rule_paths(v0: np.ndarray, increments: np.ndarray) -> np.ndarray:
+    """Rows of v[k+1] = max(v[k] + increments[k], 0) from v0 [N] (Lindley's recursion)."""
+    cumulative = np.concatenate([np.zeros((len(v0), 1)), np.cumsum(increments, axis=1)], axis=1)
+    return cumulative - np.minimum(-v0[:, None], np.minimum.accumulate(cumulative, axis=1))
+
+
+class _Corridors:
+    """The c-independent parts of the corridors of N states on S sub-intervals of [0, t]."""
+
+    def __init__(self, x: np.ndarray, steps: int, horizon: float) -> None:
+        t = x[:, COL["t"]].astype(float)
+        self.n = len(x)
+        self.s = t[:, None] * np.linspace(0.0, 1.0, steps + 1)[None, :]  # [N, S + 1]
+        self.h = t / steps  # [N]
+        params = x.astype(float)[:, None, :]
+        u1_lo_cum, u1_hi_cum = heading_interval(params, self.s, horizon)
+        u2_lo_cum, _ = speed_change_interval(params, self.s, horizon)
+        self.u1_lo_cum, self.u1_hi_cum = u1_lo_cum, u1_hi_cum
+        h2 = (self.h * self.h / 8.0)[:, None]
+        curvature = lambda a, b: np.abs(x[:, COL[b]] - x[:, COL[a]])[:, None] / horizon  # noqa: E731
+        self.pad_u1_lo = curvature("u1_min_start", "u1_min_end") * h2 + 1e-12
+        self.pad_u1_hi = curvature("u1_max_start", "u1_max_end") * h2 + 1e-12
+        pad_u2_lo = curvature("u2_min_start", "u2_min_end") * h2 + 1e-12
+
+        _, a_lo, _, a_hi = interpolate_bounds(params, self.s, horizon)
+        self.step_lo = np.minimum(a_lo[:, :-1], a_lo[:, 1:]) * self.h[:, None]
+        self.step_hi = np.maximum(a_hi[:, :-1], a_hi[:, 1:]) * self.h[:, None]
+        self.v_start = x[:, COL["v_start"]].astype(float)
+
+        # Backward speed corridor from v_f: v(s) <= v_f - (U2_lo(t) - U2_lo(s)) (braking from v(s)
+        # ends no lower than that, the stop rule only raises it) and v(s) >= v_f - integral over
+        # [s, t] of max(u2_hi, 0) (no faster growth is possible).
+        v_f = x[:, COL["speed"]].astype(float)[:, None]
+        back_hi = v_f - (u2_lo_cum[:, -1:] - u2_lo_cum)
+        gain = np.maximum(self.step_hi, 0.0)
+        gain_after = np.concatenate(
+            [np.cumsum(gain[:, ::-1], axis=1)[:, ::-1], np.zeros((self.n, 1))], axis=1
+        )
+        back_lo = v_f - gain_after
+        self.back_speed_nodes = (back_lo, back_hi)
+        self.back_speed = (_hull(back_lo, 0.0, upper=False), _hull(back_hi, pad_u2_lo, upper=True))
+        self.position = x[:, [COL["px"], COL["py"]]].astype(float)
+
+    def subset(self, rows: np.ndarray) -> _Corridors:
+        """The corridors of some of the states."""
+        part = object.__new__(_Corridors)
+        for name, value in vars(self).items():
+            if isinstance(value, tuple):
+                value = tuple(v[rows] for v in value)
+            elif isinstance(value, np.ndarray) and value.ndim >= 1 and len(value) == self.n:
+                value = value[rows]
+            setattr(part, name, value)
+        part.n = len(rows)
+        return part
+
+    def excluded(self, c: np.ndarray, theta_f: np.ndarray, initial_set: InitialSet) -> np.ndarray:
+        """True where no trajectory from {l <= c} [N] ends at the states with final (unwrapped)
+        heading theta_f [N]."""
+        m = initial_set
+        grow = 1.0 + c / m.radius_m
+        eps_th = (m.heading_margin_rad * grow)[:, None]
+        eps_v = m.speed_margin_mps * grow
+
+        f_lo, f_hi = self.u1_lo_cum - eps_th, self.u1_hi_cum + eps_th
+        b_lo = theta_f[:, None] - (self.u1_hi_cum[:, -1:] - self.u1_hi_cum)
+        b_hi = theta_f[:, None] - (self.u1_lo_cum[:, -1:] - self.u1_lo_cum)
+        empty = np.any((f_lo > b_hi + 1e-9) | (b_lo > f_hi + 1e-9), axis=1)
+        th_lo = np.maximum(
+            _hull(f_lo, self.pad_u1_lo, upper=False), _hull(b_lo, self.pad_u1_hi, upper=False)
+        )
+        th_hi = np.minimum(
+            _hull(f_hi, self.pad_u1_hi, upper=True), _hull(b_hi, self.pad_u1_lo, upper=True)
+        )
+
+        v_lo_f = _stop_rule_paths(np.maximum(self.v_start - eps_v, 0.0), self.step_lo)
+        v_hi_f = _stop_rule_paths(self.v_start + eps_v, self.step_hi)
+        back_lo_nodes, back_hi_nodes = self.back_speed_nodes
+        empty |= np.any((v_lo_f > back_hi_nodes + 1e-9) | (back_lo_nodes > v_hi_f + 1e-9), axis=1)
+        sp_lo = np.maximum(np.maximum(_hull(v_lo_f, 0.0, upper=False), self.back_speed[0]), 0.0)
+        sp_hi = np.minimum(_hull(v_hi_f, 0.0, upper=True), self.back_speed[1])
+        sp_hi = np.maximum(sp_hi, sp_lo)  # an empty sub-interval is caught at the nodes above
+        th_hi = np.maximum(th_hi, th_lo)
+
+        _, c_hi = cos_range(
+            th_lo[:, :, None] - DIRECTIONS[None, None, :], th_hi[:, :, None] - DIRECTIONS
+        )
+        rate = np.where(c_hi >= 0, sp_hi[:, :, None] * c_hi, sp_lo[:, :, None] * c_hi)
+        support = m.radius_m + c[:, None] + rate.sum(axis=1) * self.h[:, None]  # [N, M]
+        reach = self.position @ np.stack([np.cos(DIRECTIONS), np.sin(DIRECTIONS)])
+        return empty | np.any(reach > support + 1e-9, axis=1)
+
+
+def value_lower_bound(
+    x: np.ndarray,
+    steps: int = 40,
+    iterations: int = 6,
+    c_max: float = 8.0,
+    horizon: float = HORIZON_S,
+    initial_set: InitialSet = INITIAL_SET,
+    chunk: int = 4096,
+) -> np.ndarray:
+    """A proven lower bound on V at the 14-column inputs ``x`` [N, 14]: the largest c found by
+    bisection on [0, c_max] (to c_max / 2^iterations) with V > c; -inf where even c = 0 cannot be
+    excluded (the state may be reachable)."""
+    x = np.asarray(x, dtype=float)
+    out = np.empty(len(x))
+    for a in range(0, len(x), chunk):
+        out[a : a + chunk] = _lower_bound_chunk(
+            x[a : a + chunk], steps, iterations, c_max, horizon, initial_set
+        )
+    return out
+
+
+def _lower_bound_chunk(
+    x: np.ndarray,
+    steps: int,
+    iterations: int,
+    c_max: float,
+    horizon: float,
+    initial_set: InitialSet,
+) -> np.ndarray:
+    """Per unwrapped final heading (theta_f + 2 pi k, |k| <= 1 covers every heading change within
+    the limits): rows reachable at c = 0 are done (-inf); the others are bisected on c."""
+    best = np.full(len(x), np.inf)
+    for shift in (0.0, -2 * math.pi, 2 * math.pi):
+        rows = np.flatnonzero(best > -np.inf)
+        if len(rows) == 0:
+            break
+        corridors = _Corridors(x[rows], steps, horizon)
+        theta_f = x[rows, COL["heading"]] + shift
+        zero = corridors.excluded(np.zeros(len(rows)), theta_f, initial_set)
+        bound = np.full(len(rows), -np.inf)
+        live = np.flatnonzero(zero)
+        if len(live):
+            part = corridors.subset(live)
+            theta = theta_f[live]
+            lo, hi = np.zeros(len(live)), np.full(len(live), c_max)
+            at_max = part.excluded(hi, theta, initial_set)
+            for _ in range(iterations):
+                mid = (lo + hi) / 2
+                out = part.excluded(mid, theta, initial_set)
+                lo = np.where(out, mid, lo)
+                hi = np.where(out, hi, mid)
+            bound[live] = np.where(at_max, c_max, lo)
+        best[rows] = np.minimum(best[rows], bound)
+    return best
+
+
+def sample_bounded_states(
+    n_params: int, per_param: int, rng: np.random.Generator, horizon: float = HORIZON_S
+) -> tuple[np.ndarray, np.ndarray]:
+    """States near and around the reachable set with their proven lower bound on V, for
+    training: rollout endpoints (reachable positions) moved 0.5-20 m in a random direction,
+    with the heading and speed of another rollout of the same setting. Returns (x [N, 14], lower
+    bound [N]), keeping only the states the bound excludes (bound >= 0)."""
+    from models.rollout import rk4_rollout, sample_control_schedules, sample_initial_states
+    from models.sampling import sample_parameters, set_state
+
+    params = np.repeat(sample_parameters(n_params, rng), per_param, axis=0)
+    n = len(params)
+    t = np.repeat(rng.uniform(0.3, horizon, n_params), per_param)
+    start = sample_initial_states(params[:, COL["v_start"]], rng)
+    a1, a2, switches = sample_control_schedules(n, horizon, rng)
+    end, _ = rk4_rollout(start, params, t, a1, a2, switches * (t / horizon)[:, None], 24)
+    other = (np.arange(n) // per_param) * per_param + rng.integers(0, per_param, n)
+    distance = 10 ** rng.uniform(math.log10(0.5), math.log10(20.0), n)
+    angle = rng.uniform(-math.pi, math.pi, n)
+    heading = (end[2][other] + math.pi) % (2 * math.pi) - math.pi
+    x = set_state(
+        params,
+        t,
+        (
+            end[0] + distance * np.cos(angle),
+            end[1] + distance * np.sin(angle),
+            heading,
+            end[3][other],
+        ),
+    )
+    bound = value_lower_bound(x)
+    keep = bound >= 0
+    return x[keep], bound[keep]
+
+
+def main() -> None:
+    import argparse
+    from pathlib import Path
+
+    from tqdm import tqdm
+
+    parser = argparse.ArgumentParser(description="States with a proven lower bound on V.")
+    parser.add_argument("--out", type=Path, required=True, help=".npz with x and lower_bound")
+    parser.add_argument("--params", type=int, default=4000)
+    parser.add_argument("--per-param", type=int, default=32)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    rng = np.random.default_rng(args.seed)
+    xs, bounds = [], []
+    for _ in tqdm(range(0, args.params, 100), desc="lower bounds", unit="100 settings"):
+        x, bound = sample_bounded_states(100, args.per_param, rng)
+        xs.append(x)
+        bounds.append(bound)
+    x, bound = np.concatenate(xs), np.concatenate(bounds)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(args.out, x=x.astype(np.float32), lower_bound=bound.astype(np.float32))
+    print(f"{len(x)} states, lower bound median {np.median(bound):.2f}, wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()

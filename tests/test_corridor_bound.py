@@ -1,0 +1,78 @@
+"""The corridor lower bound on V: never above the value of a simulated state, and not vacuous
+where the interval outer bound is (the notch behind a car)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import shapely
+
+from models.contract import COL, HORIZON_S, N_INPUTS
+from models.corridor_bound import sample_bounded_states, value_lower_bound
+from models.dynamics import initial_set_value
+from models.eval_settings import SETTINGS
+from models.outer_bound import outer_bound
+from models.rollout import (
+    rk4_rollout,
+    sample_control_schedules,
+    sample_initial_states,
+    sample_reference_schedules,
+)
+from models.sampling import sample_parameters
+
+
+def _inputs(t: float, state: tuple[np.ndarray, ...], v_start: float, bounds: np.ndarray):
+    x = np.zeros((len(state[0]), N_INPUTS))
+    x[:, COL["t"]] = t
+    x[:, COL["px"]], x[:, COL["py"]] = state[0], state[1]
+    x[:, COL["heading"]] = (state[2] + np.pi) % (2 * np.pi) - np.pi
+    x[:, COL["speed"]] = state[3]
+    x[:, COL["v_start"]] = v_start
+    x[:, 6:] = bounds
+    return x
+
+
+@pytest.mark.parametrize(
+    ("seed", "schedules"), [(0, sample_control_schedules), (1, sample_reference_schedules)]
+)
+def test_the_bound_never_exceeds_the_initial_value_of_a_simulated_state(seed, schedules) -> None:
+    """V(t, xi(t)) <= l(xi(0)) for every trajectory, so a sound lower bound must be below l(xi(0)):
+    starts spread over three times the initial set (l up to ~1 m), edge starts, all settings
+    of every third evaluation setting and random in-range ones, several times."""
+    rng = np.random.default_rng(seed)
+    settings = [(s.v_start, s.bounds()) for s in SETTINGS[seed::3]]
+    settings += [(float(p[COL["v_start"]]), p[6:]) for p in sample_parameters(4, rng)]
+    n = 300
+    for v_start, bounds in settings:
+        params = np.zeros((n, N_INPUTS))
+        params[:, 6:] = bounds
+        params[:, COL["v_start"]] = v_start
+        start = sample_initial_states(params[:, COL["v_start"]], rng, spread=3.0, on_boundary=0.3)
+        initial_value = initial_set_value(*start, v_start)
+        a1, a2, sw = schedules(n, HORIZON_S, rng)
+        _, trace = rk4_rollout(start, params, np.full(n, HORIZON_S), a1, a2, sw, 150, record=True)
+        for tau, state in trace[14::45]:
+            bound = value_lower_bound(_inputs(float(tau[0]), state, v_start, bounds))
+            assert np.all(bound < np.maximum(initial_value, 0.0) + 1e-9), (v_start, bounds)
+
+
+def test_it_excludes_the_notch_behind_a_car_inside_the_outer_polygon() -> None:
+    """urban_wide (8 m/s, |u1| <= 1.2, |u2| <= 6) at t = 3 s: 10 m straight behind the start lies
+    inside the convex outer polygon, yet no heading and speed make it reachable."""
+    setting = {s.name: s for s in SETTINGS}["urban_wide"]
+    bounds = setting.bounds()
+    ob = outer_bound(setting.v_start, bounds)
+    row = int(np.argmin(np.abs(ob.times - HORIZON_S)))
+    assert shapely.Polygon(ob.polygons_at([row])[0]).contains(shapely.Point(-10.0, 0.0))
+    headings = np.linspace(-np.pi, np.pi, 48, endpoint=False)
+    speeds = np.linspace(*ob.speed[row], 12)
+    h, v = (a.ravel() for a in np.meshgrid(headings, speeds))
+    state = (np.full(h.size, -10.0), np.zeros(h.size), h, v)
+    bound = value_lower_bound(_inputs(HORIZON_S, state, setting.v_start, bounds))
+    assert bound.min() > 0.5
+
+
+def test_training_states_carry_their_bound() -> None:
+    x, bound = sample_bounded_states(4, 32, np.random.default_rng(0))
+    assert len(x) > 32 and np.all(bound >= 0)
+    np.testing.assert_array_equal(value_lower_bound(x), bound)

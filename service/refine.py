@@ -36,14 +36,18 @@ class Refinement:
 
 
 def dilate(mask: np.ndarray, radius: int) -> np.ndarray:
-    """[J, H, W] boolean mask grown by ``radius`` nodes in both directions (a square)."""
-    count, height, width = mask.shape
-    padded = np.zeros((count, height + 2 * radius, width + 2 * radius), dtype=bool)
-    padded[:, radius : radius + height, radius : radius + width] = mask
-    out = np.zeros_like(mask)
-    for dk in range(2 * radius + 1):
-        for di in range(2 * radius + 1):
-            out |= padded[:, dk : dk + height, di : di + width]
+    """[J, H, W] boolean mask grown by ``radius`` nodes in both directions (a square), one axis
+    after the other."""
+    out = mask.copy()
+    for axis in (1, 2):
+        grown = out.copy()
+        for shift in range(1, radius + 1):
+            ahead = [slice(None)] * 3
+            behind = [slice(None)] * 3
+            ahead[axis], behind[axis] = slice(shift, None), slice(None, -shift)
+            grown[tuple(ahead)] |= out[tuple(behind)]
+            grown[tuple(behind)] |= out[tuple(ahead)]
+        out = grown
     return out
 
 

@@ -77,6 +77,15 @@ def test_dilate_grows_by_a_square() -> None:
     mask[0, 2, 2] = True
     assert dilate(mask, 1)[0].sum() == 9
     assert dilate(mask, 2)[0].all()
+    rng = np.random.default_rng(0)
+    scattered = rng.uniform(size=(3, 20, 17)) < 0.05
+    for radius in (1, 2, 3):
+        padded = np.pad(scattered, ((0, 0), (radius, radius), (radius, radius)))
+        square = np.zeros_like(scattered)
+        for dk in range(2 * radius + 1):
+            for di in range(2 * radius + 1):
+                square |= padded[:, dk : dk + 20, di : di + 17]
+        np.testing.assert_array_equal(dilate(scattered, radius), square)
 
 
 @pytest.mark.skipif(not MODEL.exists(), reason="no shipped model yet")

@@ -165,13 +165,13 @@ class FRTScheduler:
             future: Future[Any] = Future()
             slot: Hashable = key.agent_id or key
             if key.agent_id:
-                if any(
-                    k.agent_id == key.agent_id and k.version > key.version
-                    for k in (*self._running, *self._queue.values())
+                # The agent's queued set is in its slot (one per agent): no scan of the queue.
+                older = self._queue.get(slot)
+                if (older is not None and older.version > key.version) or any(
+                    k.agent_id == key.agent_id and k.version > key.version for k in self._running
                 ):
                     future.cancel()
                     return future
-                older = self._queue.get(slot)
                 if older is not None:
                     self._pending.pop(older).future.cancel()
             self._pending[key] = _Job(compute, future)

@@ -112,7 +112,7 @@ async def answer_states(
     # milliseconds to answer, which a wait up to half the deadline would push past it.
     budget = wait_budget_s(arrival, deadline_ms, settings) - services.answer_time_s(len(states))
     # Cached sets first, without a task each (a planner's check of 50 agents mostly finds them).
-    exact = [services.cached_exact(job) for job in jobs]
+    exact = services.cached_exact(jobs)
     late = [i for i, frt in enumerate(exact) if frt is None]
     # The late ones: only sets that may still make it are waited for, all in one wait, with the
     # conservative sets still on their way from their worker (~1 ms each to build here instead).

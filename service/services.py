@@ -10,6 +10,7 @@ import asyncio
 import contextlib
 import logging
 import time
+from collections.abc import Sequence
 from concurrent.futures import BrokenExecutor, Executor, Future
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -175,12 +176,14 @@ class Services:
         """Start computing the exact set of ``job`` in the background."""
         self.scheduler.submit(job.key, self.exact_task(job))
 
-    def cached_exact(self, job: FRTJob) -> FRTSet | None:
-        """The exact set of ``job`` if it is computed already (counted as a cache hit), else None."""
-        frt = self.scheduler.lookup(job.key)
-        if frt is not None:
-            self.metrics.frt_cache.labels("hit").inc()
-        return frt  # type: ignore[no-any-return]
+    def cached_exact(self, jobs: Sequence[FRTJob]) -> list[FRTSet | None]:
+        """Each job's exact set if it is computed already, else None; the hits are counted at once
+        (a planner's check of 50 agents: one counter update, not 50)."""
+        found = [self.scheduler.lookup(job.key) for job in jobs]
+        hits = sum(frt is not None for frt in found)
+        if hits:
+            self.metrics.frt_cache.labels("hit").inc(hits)
+        return found
 
     def exact_future(self, job: FRTJob, timeout_s: float) -> Future[Any] | None:
         """The future of ``job``'s exact set if it may be ready within ``timeout_s``, else None

@@ -50,8 +50,6 @@ def _same_size(
     b = np.stack([s.boxes for s in sets])[:, None, :, :]  # [A, 1, M, 4]
     dx = np.maximum(b[..., 0] - x, x - b[..., 1])  # [A, N, M]
     dy = np.maximum(b[..., 2] - y, y - b[..., 3])
-    outside = np.hypot(np.maximum(dx, 0.0), np.maximum(dy, 0.0))
-    distance = np.where((dx <= 0) & (dy <= 0), np.maximum(dx, dy), outside)
     n_points, n_boxes = xy_world.shape[0], b.shape[2]
     index = np.empty((len(sets), n_points), dtype=int)
     for a, (frt, t) in enumerate(zip(sets, t_rel, strict=True)):
@@ -62,17 +60,45 @@ def _same_size(
     until = np.stack([frt.boxes_until for frt in sets])  # [A, J]
     limit = np.take_along_axis(until, index, axis=1)  # [A, N]
     mask = np.arange(n_boxes)[None, None, :] < limit[:, :, None]
-    result = np.where(mask, distance, np.inf).min(axis=2)
+    result = _nearest(dx, dy, mask)
     human = np.concatenate([x, y], axis=2)  # [A, N, 2]
     answers = []
+    any_inside = (result < 0).any(axis=1)
     for a, frt in enumerate(sets):
         row = result[a]
+        if not any_inside[a]:
+            answers.append(row)
+            continue
         inside = np.flatnonzero(row < 0)
         for j in np.unique(index[a, inside]):  # inside: the depth in the union, not in one box
             rows = inside[index[a, inside] == j]
             row[rows] = signed_distance(frt.tube(int(j)), human[a, rows])
         answers.append(row)
     return answers
+
+
+def _nearest(dx: np.ndarray, dy: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Over the last axis (boxes) where ``mask``: the minimum of each box's signed distance,
+    ``max(dx, dy)`` inside it (both <= 0) and ``hypot(max(dx, 0), max(dy, 0))`` outside; inf if
+    no box counts. The same values as computing every box's distance, with hypot (~25 ns each,
+    most of the work for 50 agents' 120 boxes) only where it can be the minimum:
+
+    * a point inside a box (``max(dx, dy) <= 0``) has every outside box farther (> 0), so its
+      minimum is the least ``max(dx, dy)``;
+    * outside every box, ``hypot(p, q) >= max(p, q) = max(dx, dy)``, so only boxes whose
+      ``max(dx, dy)`` is at most the hypot of the box with the least one can hold the minimum.
+    """
+    m = np.where(mask, np.maximum(dx, dy), np.inf)
+    least = m.min(axis=-1)
+    best = m.argmin(axis=-1)[..., None]
+    upper = np.hypot(
+        np.maximum(np.take_along_axis(dx, best, -1), 0.0),
+        np.maximum(np.take_along_axis(dy, best, -1), 0.0),
+    )
+    candidate = (m <= upper) & (least > 0.0)[..., None]
+    distance = np.full(dx.shape, np.inf)
+    distance[candidate] = np.hypot(np.maximum(dx[candidate], 0.0), np.maximum(dy[candidate], 0.0))
+    return np.where(least <= 0.0, least, distance.min(axis=-1))
 
 
 def tube_clearances(

@@ -24,11 +24,9 @@ driving that nobody here scripted):
 - confidence on (beta_low = 0.03) and off (beta_low = 1 - 1e-6, beta fixed at 1), gamma = 0.075.
 
 Observations whose speed lies outside the model's trained ``v_start`` range are skipped (the
-service would answer 422) and counted. So are observations of cars slower than 0.3 m/s
-(``experiments.server.SLOW_SPEED_MPS``): the service takes ~10 s per exact set at such speeds, which
-the 8 parked cars of the scenario would turn into most of an hour; a parked car's next 3 s lie
-within the initial set anyway. After a skipped observation the next one is sent without an
-observed action (the previous prediction is stale), so the filter is not scored across the gap.
+service would answer 422) and counted; parked and slow cars are observed like the others. After a
+skipped observation the next one is sent without an observed action (the previous prediction is
+stale), so the filter is not scored across the gap.
 """
 
 from __future__ import annotations
@@ -48,7 +46,7 @@ from frt_client import FRTError
 from shapely.geometry import shape
 
 from experiments.run_scenarios import COLLISION_RADIUS_M, GAMMA, agent_config
-from experiments.server import DEADLINE_MS, SLOW_SPEED_MPS, wait_exact
+from experiments.server import DEADLINE_MS, wait_exact
 from models.dynamics import wrap_angle
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -190,7 +188,6 @@ class Replay:
     confidence: bool
     observations: list[ObservationResult] = field(default_factory=list)
     skipped_out_of_range: int = 0
-    skipped_slow: int = 0
 
     def summary(self) -> dict[str, Any]:
         obs = self.observations
@@ -198,7 +195,6 @@ class Replay:
             return {
                 "observations": 0,
                 "skipped_out_of_range": self.skipped_out_of_range,
-                "skipped_slow": self.skipped_slow,
             }
 
         def mean(key: str, rows: Sequence[ObservationResult] = obs) -> float:
@@ -209,7 +205,6 @@ class Replay:
             "observations": len(obs),
             "tracks": len({o.track_id for o in obs}),
             "skipped_out_of_range": self.skipped_out_of_range,
-            "skipped_slow": self.skipped_slow,
             "fraction_in_K": round(mean("in_k"), 4),
             "fraction_in_C": round(mean("in_c"), 4),
             "fraction_in_K_time_indexed": round(mean("in_k_time"), 4),
@@ -238,7 +233,6 @@ def replay_track(
     v_max: float,
     replay: Replay,
     contours: dict[tuple[str, float], dict[str, Any]] | None = None,
-    min_speed: float = SLOW_SPEED_MPS,
 ) -> None:
     """Observe one track every 0.5 s and score its actual future against K and C."""
     agent_id = f"av2-{track.track_id}-{'on' if confidence else 'off'}-{uuid.uuid4().hex[:6]}"
@@ -247,10 +241,6 @@ def replay_track(
         for i in track.observation_indices():
             if not 0.0 <= track.speed[i] <= v_max:
                 replay.skipped_out_of_range += 1
-                fresh = True
-                continue
-            if track.speed[i] < min_speed:
-                replay.skipped_slow += 1
                 fresh = True
                 continue
             state = (

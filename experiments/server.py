@@ -15,9 +15,10 @@ import sys
 import tempfile
 import time
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 
-from frt_client import FRTClient
+from frt_client import FRTClient, calls
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_MODEL = ROOT / "models" / "frt_unicycle.onnx"
@@ -25,15 +26,8 @@ DEFAULT_MODEL = ROOT / "models" / "frt_unicycle.onnx"
 #: answers, never the service's conservative fallback (which the results would then record).
 DEADLINE_MS = 60_000.0
 CLIENT_TIMEOUT_S = 120.0
-#: Workaround, kept so that the committed results reproduce, of an engine cost fixed since: with
-#: v_start below about 0.25 m/s the service's exact set took ~10 s (61 ``shapely.union`` calls of
-#: nearly coincident slices; the field engine takes ~8 ms). Below this speed the experiments do not
-#: wait for the exact set: the planner's checks use a short deadline and may be answered from the
-#: conservative outer bound (a superset: a safe answer, counted separately in the results).
-#: Set to 0 and re-run ``make scenarios`` to include parked cars.
-SLOW_SPEED_MPS = 0.3
-#: Deadline of a check while the human is below ``SLOW_SPEED_MPS`` (ms).
-AT_REST_DEADLINE_MS = 200.0
+#: The longest wait one ``GET /v1/agents/{id}?wait_frt_ms=N`` accepts (service/routes/agents.py).
+WAIT_FRT_MAX_MS = 10_000.0
 
 
 def free_port() -> int:
@@ -109,15 +103,19 @@ def wait_exact(client: FRTClient, agent_id: str, timeout_s: float = 120.0) -> No
 
     A collision check that arrives while the exact set is still queued is answered at once from
     the conservative outer bound (API.md, "Collision check"); a planner that wants the exact answer,
-    as these experiments do, waits for ``frt_ready`` first.
+    as these experiments do, waits for it first: ``GET /v1/agents/{id}?wait_frt_ms=N`` answers as
+    soon as the exact set is ready (the SDK's ``get_agent`` has no such argument, so the same call
+    is sent with the query added). One wait is at most ``WAIT_FRT_MAX_MS`` (the API's limit).
     """
     end = time.monotonic() + timeout_s
-    delay = 0.005
-    while not client.get_agent(agent_id).frt_ready:
-        if time.monotonic() > end:
+    while True:
+        remaining_ms = (end - time.monotonic()) * 1000.0
+        if remaining_ms <= 0.0:
             raise TimeoutError(f"exact FRT of {agent_id} not ready after {timeout_s} s")
-        time.sleep(delay)
-        delay = min(delay * 1.5, 0.1)
+        wait_ms = min(remaining_ms, WAIT_FRT_MAX_MS)
+        call = replace(calls.get_agent(agent_id), params={"wait_frt_ms": wait_ms})
+        if client.send(call).frt_ready:
+            return
 
 
 @contextlib.contextmanager

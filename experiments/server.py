@@ -15,10 +15,9 @@ import sys
 import tempfile
 import time
 from collections.abc import Iterator
-from dataclasses import replace
 from pathlib import Path
 
-from frt_client import FRTClient, calls
+from frt_client import FRTClient
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_MODEL = ROOT / "models" / "frt_unicycle.onnx"
@@ -104,8 +103,8 @@ def wait_exact(client: FRTClient, agent_id: str, timeout_s: float = 120.0) -> No
     A collision check that arrives while the exact set is still queued is answered at once from
     the conservative outer bound (API.md, "Collision check"); a planner that wants the exact answer,
     as these experiments do, waits for it first: ``GET /v1/agents/{id}?wait_frt_ms=N`` answers as
-    soon as the exact set is ready (the SDK's ``get_agent`` has no such argument, so the same call
-    is sent with the query added). One wait is at most ``WAIT_FRT_MAX_MS`` (the API's limit).
+    soon as the exact set is ready (the SDK's ``get_agent(..., wait_frt_ms=N)``). One wait is at
+    most ``WAIT_FRT_MAX_MS`` (the API's limit).
     """
     end = time.monotonic() + timeout_s
     while True:
@@ -113,8 +112,7 @@ def wait_exact(client: FRTClient, agent_id: str, timeout_s: float = 120.0) -> No
         if remaining_ms <= 0.0:
             raise TimeoutError(f"exact FRT of {agent_id} not ready after {timeout_s} s")
         wait_ms = min(remaining_ms, WAIT_FRT_MAX_MS)
-        call = replace(calls.get_agent(agent_id), params={"wait_frt_ms": wait_ms})
-        if client.send(call).frt_ready:
+        if client.get_agent(agent_id, wait_frt_ms=wait_ms).frt_ready:
             return
 
 

@@ -109,6 +109,15 @@ def test_health_readiness_and_model_card(client: FRTClient) -> None:
     assert card.ranges["v_start"] == [0.0, 20.0] and card.card["sha256"]
 
 
+def test_get_agent_can_wait_for_the_exact_frt(client: FRTClient) -> None:
+    """``wait_frt_ms``: one request that answers once the exact set of the current version is
+    ready (the analytic model's set takes milliseconds), instead of polling ``frt_ready``."""
+    agent = agent_id()
+    client.observe(agent, timestamp=1.0, state=(0.0, 0.0, 0.0, 5.0), prediction=prediction())
+    view = client.get_agent(agent, wait_frt_ms=5000)
+    assert view.frt_ready and view.frt_version == 1
+
+
 def test_observations_take_numpy_models_and_tuples(client: FRTClient) -> None:
     agent = agent_id()
     first = client.observe(

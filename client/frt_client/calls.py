@@ -86,7 +86,7 @@ def observe(
     )
 
 
-def get_agent(agent_id: str) -> Call[Agent]:
+def get_agent(agent_id: str, wait_frt_ms: float = 0.0) -> Call[Agent]:
     return Call(
         "GET",
         _agent_path(agent_id),
@@ -94,6 +94,7 @@ def get_agent(agent_id: str) -> Call[Agent]:
         idempotent=True,
         op="get_agent",
         message={"agent_id": agent_id},
+        params={"wait_frt_ms": wait_frt_ms} if wait_frt_ms > 0 else None,
     )
 
 

@@ -70,9 +70,12 @@ class Operations:
             )
         )
 
-    def get_agent(self, agent_id: str) -> Agent:
-        """The agent's β, belief, control bounds, last timestamp, FRT version and config."""
-        return self.send(calls.get_agent(agent_id))
+    def get_agent(self, agent_id: str, *, wait_frt_ms: float = 0.0) -> Agent:
+        """The agent's β, belief, control bounds, last timestamp, FRT version and config; with
+        ``wait_frt_ms`` (at most 10 000; keep the client's timeout above it), answered once the
+        exact FRT of its current version is ready or that time has passed (``frt_ready`` says
+        which)."""
+        return self.send(calls.get_agent(agent_id, wait_frt_ms))
 
     def delete_agent(self, agent_id: str) -> DeleteResult:
         """Forget the agent (404 if unknown)."""
@@ -232,9 +235,12 @@ class AsyncOperations:
             )
         )
 
-    async def get_agent(self, agent_id: str) -> Agent:
-        """The agent's β, belief, control bounds, last timestamp, FRT version and config."""
-        return await self.send(calls.get_agent(agent_id))
+    async def get_agent(self, agent_id: str, *, wait_frt_ms: float = 0.0) -> Agent:
+        """The agent's β, belief, control bounds, last timestamp, FRT version and config; with
+        ``wait_frt_ms`` (at most 10 000; keep the client's timeout above it), answered once the
+        exact FRT of its current version is ready or that time has passed (``frt_ready`` says
+        which)."""
+        return await self.send(calls.get_agent(agent_id, wait_frt_ms))
 
     async def delete_agent(self, agent_id: str) -> DeleteResult:
         """Forget the agent (404 if unknown)."""

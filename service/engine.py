@@ -323,6 +323,10 @@ class FieldTubeSet(FRTSet):
         self.coarse = np.zeros(len(instant), dtype=bool) if coarse is None else coarse
         self._tubes: dict[int, BaseGeometry] = {}
         self._slices: dict[int, BaseGeometry] = {}
+        #: Outer polygons of the OUTER_WINDOW_S windows, and their unions by window count.
+        self._outer_windows: np.ndarray | None = None
+        self._outer_unions: dict[int, BaseGeometry] = {}
+        self._hulls: dict[int, BaseGeometry] = {}
         self._lock = threading.Lock()
 
     def _grow(self, k_set: BaseGeometry) -> BaseGeometry:
@@ -343,13 +347,24 @@ class FieldTubeSet(FRTSet):
             k_set = k_set.intersection(outer)
         unresolved = self._unresolved_sweeps(j)
         if unresolved:
-            # The polygon of the support functions' maximum over those sweeps contains their hull.
-            support = self.bound.sweep_support[unresolved].max(axis=0)
-            hull = shapely.Polygon(half_plane_polygons(self.bound.directions, support[None])[0])
-            k_set = shapely.union(k_set, hull.intersection(outer))
+            k_set = shapely.union(k_set, self._unresolved_hull(unresolved).intersection(outer))
         with self._lock:
             self._tubes[j] = k_set
         return k_set
+
+    def _unresolved_hull(self, sweeps: list[int]) -> BaseGeometry:
+        """The polygon of the support functions' maximum over ``sweeps``, which contains their
+        hull (the same for every tube past the last unresolved instant: built once). The lists of
+        one set are prefixes of each other (``_unresolved_sweeps``), so their length names them."""
+        key = len(sweeps)
+        with self._lock:
+            hull = self._hulls.get(key)
+        if hull is None:
+            support = self.bound.sweep_support[sweeps].max(axis=0)
+            hull = shapely.Polygon(half_plane_polygons(self.bound.directions, support[None])[0])
+            with self._lock:
+                self._hulls[key] = hull
+        return hull
 
     def _unresolved_sweeps(self, j: int) -> list[int]:
         """Outer-bound sweeps of the intervals up to s_j that touch an unresolved instant."""
@@ -362,15 +377,38 @@ class FieldTubeSet(FRTSet):
 
     def outer_tube(self, j: int) -> BaseGeometry:
         """A union of outer polygons that contains every position reached during [0, s_j]: one
-        polygon per ``OUTER_WINDOW_S`` (the support functions' maximum over its sweeps)."""
+        polygon per ``OUTER_WINDOW_S`` (the support functions' maximum over its sweeps).
+
+        The windows' polygons are built once per set and the unions grow from the largest one
+        already built (checks ask for many tubes of one set, mostly in increasing order)."""
         n = self.bound_rows[j]
         if n == 0:
             return self.outer.tube(0)
         chunk = max(round(OUTER_WINDOW_S / float(self.bound.times[1] - self.bound.times[0])), 1)
         support = self.bound.sweep_support
-        windows = np.stack([support[a : min(a + chunk, n)].max(axis=0) for a in range(0, n, chunk)])
-        polygons = convex_polygons(self.bound.directions, windows)
-        return shapely.union_all(polygons)
+        if n % chunk:  # a partial last window: not one of the shared windows
+            windows = np.stack(
+                [support[a : min(a + chunk, n)].max(axis=0) for a in range(0, n, chunk)]
+            )
+            return shapely.union_all(convex_polygons(self.bound.directions, windows))
+        count = n // chunk
+        with self._lock:
+            polygons = self._outer_windows
+            built = dict(self._outer_unions)
+        if polygons is None:
+            full = len(support) // chunk
+            windows = support[: full * chunk].reshape(full, chunk, -1).max(axis=1)
+            polygons = convex_polygons(self.bound.directions, windows)
+        if count in built:
+            union = built[count]
+        else:
+            start = max((c for c in built if c < count), default=0)
+            parts = list(polygons[start:count])
+            union = shapely.union_all(parts if start == 0 else [built[start], *parts])
+        with self._lock:
+            self._outer_windows = polygons
+            self._outer_unions[count] = union
+        return union
 
     def slice(self, j: int) -> BaseGeometry:
         with self._lock:

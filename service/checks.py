@@ -34,6 +34,7 @@ from service.schemas import (
 from service.services import Services
 from service.settings import Settings
 from service.store import AgentState
+from service.tube_builder import tube_indices, within_built_tubes
 
 #: Clearances are clipped to +-this (metres) so that "no set at all" (infinite distance) stays JSON.
 CLEARANCE_LIMIT = 1e9
@@ -152,15 +153,61 @@ async def answer_states(
     pending = [i for i in chosen if i not in distances]
     plain = [i for i in pending if _plain_clearance(chosen[i])]
     rest = [i for i in pending if not _plain_clearance(chosen[i])]
-    together = tube_clearances([chosen[i] for i in plain], xy, [t_rel(i) for i in plain])
+    plain_times = {i: t_rel(i) for i in plain}
+    drawn_before = services.tubes.spent_s
+    coarse = _fit_tubes_to_deadline(
+        services, {i: chosen[i] for i in plain}, plain_times, arrival, deadline_ms, len(states)
+    )
+    together = tube_clearances([chosen[i] for i in plain], xy, [plain_times[i] for i in plain])
     distances.update(zip(plain, together, strict=True))
     for i in rest:
         distances[i] = chosen[i].clearance(xy, t_rel(i))
-    results = _respond_all(services, states, exact, request, times, distances)
-    services.record_answer_time(time.perf_counter() - start, len(states))
+    results = _respond_all(services, states, exact, request, times, distances, coarse)
+    # Tubes drawn for this check are budgeted on their own (TubeBuilder.cost_s).
+    drawing = services.tubes.spent_s - drawn_before
+    services.record_answer_time(time.perf_counter() - start - drawing, len(states))
     if time.perf_counter() - arrival > deadline_ms / 1000.0:
         services.metrics.deadline_misses.inc()
     return results
+
+
+def _fit_tubes_to_deadline(
+    services: Services,
+    sets: dict[int, FRTSet],
+    t_rel: dict[int, np.ndarray | None],
+    arrival: float,
+    deadline_ms: float,
+    agents: int,
+) -> set[int]:
+    """Draw the tubes a time-indexed check needs if there is time before the deadline's reserve;
+    else check the agents that lack some against tubes already drawn (``service.tube_builder``),
+    changing their ``t_rel`` in place, and draw the missing ones between requests. Returns the
+    agents answered so (conservatively)."""
+    missing = {
+        i: frt.missing_tubes(tube_indices(frt, times))
+        for i, frt in sets.items()
+        if (times := t_rel[i]) is not None
+    }
+    count = sum(len(m) for m in missing.values())
+    if count == 0:
+        return set()
+    left = (
+        deadline_ms / 1000.0
+        - (time.perf_counter() - arrival)
+        - services.settings.deadline_reserve_ms / 1000.0
+        - services.answer_time_s(agents)
+    )
+    if count * services.tubes.cost_s <= left:
+        for i, indices in missing.items():
+            services.tubes.build(sets[i], indices)
+        return set()
+    coarse = {i for i, indices in missing.items() if indices}
+    for i in coarse:
+        times = t_rel[i]
+        assert times is not None
+        t_rel[i] = within_built_tubes(sets[i], times)
+        services.tubes.later(sets[i], missing[i])
+    return coarse
 
 
 def _plain_clearance(frt: FRTSet) -> bool:
@@ -175,9 +222,11 @@ def _respond_all(
     request: CollisionCheckRequest,
     times: np.ndarray,
     distances: dict[int, np.ndarray],
+    coarse: set[int],
 ) -> list[CollisionCheckResponse]:
     """Every agent's answer from its distances to K (``distances[i]``, before R_col), the clearance
-    arithmetic done for all agents at once."""
+    arithmetic done for all agents at once; ``coarse``: agents whose exact set was checked with
+    later tubes than the points' own (conservative)."""
     settings = services.settings
     radii = np.array(
         [
@@ -196,7 +245,7 @@ def _respond_all(
     rows = clearance.tolist()
     horizon = services.horizon_s()
     answered = services.metrics.collision_checks
-    from_conservative = sum(frt is None for frt in exact)
+    from_conservative = sum(frt is None or i in coarse for i, frt in enumerate(exact))
     for source, count in (
         ("exact", len(states) - from_conservative),
         ("conservative", from_conservative),
@@ -205,7 +254,7 @@ def _respond_all(
             answered.labels(source).inc(count)  # once per source, not once per agent
     results = []
     for i, state in enumerate(states):
-        conservative = exact[i] is None
+        conservative = exact[i] is None or i in coarse
         index = int(first[i]) if first[i] >= 0 else None
         belief = state.belief
         # Built from values of the right types: no second validation of every clearance.

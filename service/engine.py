@@ -148,6 +148,14 @@ class FRTSet:
         tubes = {j: self.tube(j) for j in set(index)}
         return signed_distances(np.array([tubes[j] for j in index], dtype=object), xy)
 
+    def missing_tubes(self, indices: list[int]) -> list[int]:
+        """The tubes among ``indices`` not drawn yet (none where tubes cost nothing to draw)."""
+        return []
+
+    def nearest_built_tube(self, j: int) -> int:
+        """The smallest tube index >= j already drawn (tubes grow with j: it contains tube j)."""
+        return j
+
     def geometry(self, kind: str, t: float | None = None) -> BaseGeometry:
         """K in the human frame: the whole tube, the tube up to t, or the slice nearest t."""
         if kind == "tube":
@@ -351,6 +359,15 @@ class FieldTubeSet(FRTSet):
         with self._lock:
             self._tubes[j] = k_set
         return k_set
+
+    def missing_tubes(self, indices: list[int]) -> list[int]:
+        with self._lock:
+            return sorted(set(indices).difference(self._tubes))
+
+    def nearest_built_tube(self, j: int) -> int:
+        with self._lock:
+            later = [i for i in self._tubes if i >= j]
+        return min(later) if later else self.n_slices - 1
 
     def _unresolved_hull(self, sweeps: list[int]) -> BaseGeometry:
         """The polygon of the support functions' maximum over ``sweeps``, which contains their

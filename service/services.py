@@ -29,6 +29,7 @@ from service.model_runtime import ValueModel
 from service.scheduler import FRTKey, FRTScheduler, LRUCache, timed
 from service.settings import Settings
 from service.store import AgentState, AgentStore, make_store
+from service.tube_builder import TubeBuilder
 
 log = logging.getLogger("frt.services")
 
@@ -66,6 +67,8 @@ class Services:
     _conservative_pending: dict[FRTKey, Future[Any]] = field(default_factory=dict, repr=False)
     #: Recent seconds per agent to answer a collision check once its sets are known (moving average).
     _answer_s_per_agent: float = field(default=0.0, repr=False)
+    #: Draws the tubes time-indexed checks need, now or between requests.
+    tubes: TubeBuilder = field(default_factory=TubeBuilder, repr=False)
 
     @classmethod
     def build(cls, settings: Settings) -> Services:

@@ -227,9 +227,36 @@ def _fallback_then_exact(http: httpx.Client) -> tuple[dict, dict]:
     assert fast.status_code == 200, fast.text
     assert elapsed < 2.0, f"a check that may not wait took {elapsed:.3f} s"
     wait_exact(http, agent)
-    exact = http.post(f"/v1/agents/{agent}/collision-check", json=request)
+    # Time to draw the tubes the time-indexed points need (a 1 us deadline would not allow it).
+    exact = http.post(f"/v1/agents/{agent}/collision-check", json={**request, "deadline_ms": 1000})
     assert exact.status_code == 200, exact.text
     return fast.json(), exact.json()
+
+
+def test_tubes_not_drawn_in_time_give_a_conservative_answer_then_an_exact_one(
+    http: httpx.Client,
+) -> None:
+    """A time-indexed check on a fresh exact set whose deadline leaves no time to draw the tubes
+    up to each point's time is answered against later tubes (which contain them) and says so;
+    the missing tubes are drawn between requests, and the same check is then exact."""
+    agent = new_agent()
+    http.post(f"/v1/agents/{agent}/observations", json=observation(0.0, x=3.0, y=2.0, speed=6.0))
+    wait_exact(http, agent)
+    points = [{"t": 0.1 * k, "x": 3.0 + 0.6 * k, "y": 2.5} for k in range(1, 30)]
+    hurried = {"trajectory": points, "mode": "time_indexed", "deadline_ms": 0.001}
+    first = http.post(f"/v1/agents/{agent}/collision-check", json=hurried).json()
+    assert first["conservative"] is True
+    deadline = time.monotonic() + 10
+    while True:  # the tubes are drawn between requests
+        later = http.post(f"/v1/agents/{agent}/collision-check", json=hurried).json()
+        if not later["conservative"] or time.monotonic() > deadline:
+            break
+        time.sleep(0.05)
+    assert later["conservative"] is False
+    assert later["frt_version"] == first["frt_version"]
+    # The conservative answer is never less safe than the exact one.
+    assert all(f <= e + 1e-6 for f, e in zip(first["clearance"], later["clearance"], strict=True))
+    assert any(f < e - 1e-3 for f, e in zip(first["clearance"], later["clearance"], strict=True))
 
 
 def test_a_late_exact_set_gives_a_conservative_answer_in_time(http: httpx.Client) -> None:

@@ -65,7 +65,11 @@ class _Corridors:
         u2_lo_cum, _ = speed_change_interval(params, self.s, horizon)
         self.u1_lo_cum, self.u1_hi_cum = u1_lo_cum, u1_hi_cum
         h2 = (self.h * self.h / 8.0)[:, None]
-        curvature = lambda a, b: np.abs(x[:, COL[b]] - x[:, COL[a]])[:, None] / horizon  # noqa: E731
+
+        def curvature(start: str, end: str) -> np.ndarray:
+            """|second derivative| of the integral of the bound interpolated start -> end."""
+            return np.abs(x[:, COL[end]] - x[:, COL[start]])[:, None] / horizon
+
         self.pad_u1_lo = curvature("u1_min_start", "u1_min_end") * h2 + 1e-12
         self.pad_u1_hi = curvature("u1_max_start", "u1_max_end") * h2 + 1e-12
         pad_u2_lo = curvature("u2_min_start", "u2_min_end") * h2 + 1e-12

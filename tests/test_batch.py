@@ -13,20 +13,25 @@ from service.model_runtime import ValueModel
 BOUNDS = np.array([-0.3, -2.0, -0.2, -1.0, 0.3, 1.5, 0.25, 2.0])
 
 
-def test_batched_box_clearances_equal_the_sets_own(analytic_model_path: Path) -> None:
-    engine = FRTEngine(ValueModel.load(analytic_model_path))
-    rng = np.random.default_rng(3)
-    sets = [
-        engine.conservative(Pose(float(x), float(y), float(h)), float(v), BOUNDS * float(scale))
+def random_sets(build, rng: np.random.Generator, count: int) -> list:
+    """``build(pose, v_start, bounds)`` at random poses, speeds and bound widths."""
+    return [
+        build(Pose(float(x), float(y), float(h)), float(v), BOUNDS * float(scale))
         for x, y, h, v, scale in zip(
-            rng.uniform(-10, 10, 8),
-            rng.uniform(-10, 10, 8),
-            rng.uniform(-3, 3, 8),
-            rng.uniform(0, 15, 8),
-            rng.uniform(0.2, 1.0, 8),
+            rng.uniform(-10, 10, count),
+            rng.uniform(-10, 10, count),
+            rng.uniform(-3, 3, count),
+            rng.uniform(0, 15, count),
+            rng.uniform(0.2, 1.0, count),
             strict=True,
         )
     ]
+
+
+def test_batched_box_clearances_equal_the_sets_own(analytic_model_path: Path) -> None:
+    engine = FRTEngine(ValueModel.load(analytic_model_path))
+    rng = np.random.default_rng(3)
+    sets = random_sets(engine.conservative, rng, 8)
     xy = rng.uniform(-30, 60, size=(40, 2))
     t_rel = [None if i % 2 else rng.uniform(-0.5, 3.5, size=40) for i in range(len(sets))]
     together = box_clearances(sets, xy, t_rel)
@@ -39,17 +44,7 @@ def test_batched_box_clearances_equal_the_sets_own(analytic_model_path: Path) ->
 def test_batched_exact_clearances_equal_the_sets_own(analytic_model_path: Path) -> None:
     engine = FRTEngine(ValueModel.load(analytic_model_path))
     rng = np.random.default_rng(4)
-    sets = [
-        engine.exact(Pose(float(x), float(y), float(h)), float(v), BOUNDS * float(scale))
-        for x, y, h, v, scale in zip(
-            rng.uniform(-10, 10, 6),
-            rng.uniform(-10, 10, 6),
-            rng.uniform(-3, 3, 6),
-            rng.uniform(0, 15, 6),
-            rng.uniform(0.2, 1.0, 6),
-            strict=True,
-        )
-    ]
+    sets = random_sets(engine.exact, rng, 6)
     sets.append(sets[0])  # one set twice: its tubes are shared
     near = np.array([[s.pose.x + 1.0, s.pose.y] for s in sets])
     xy = np.concatenate([rng.uniform(-30, 60, size=(30, 2)), near])

@@ -56,7 +56,7 @@ def _same_size(
         if t is None:
             index[a] = frt.n_slices - 1
         else:
-            index[a] = [frt.tube_index(float(v)) for v in np.asarray(t).reshape(-1)]
+            index[a] = frt.tube_indices(t)
     until = np.stack([frt.boxes_until for frt in sets])  # [A, J]
     limit = np.take_along_axis(until, index, axis=1)  # [A, N]
     mask = np.arange(n_boxes)[None, None, :] < limit[:, :, None]
@@ -125,7 +125,7 @@ def tube_clearances(
         if t is None:
             index = [frt.n_slices - 1] * n
         else:
-            index = [frt.tube_index(float(v)) for v in np.asarray(t).reshape(-1)]
+            index = frt.tube_indices(t).tolist()
             if len(index) != n:
                 raise ValueError("t_rel needs one time per point")
         places = {}

@@ -34,7 +34,7 @@ from service.schemas import (
 from service.services import Services
 from service.settings import Settings
 from service.store import AgentState
-from service.tube_builder import tube_indices, within_built_tubes
+from service.tube_builder import within_built_tubes
 
 #: Clearances are clipped to +-this (metres) so that "no set at all" (infinite distance) stays JSON.
 CLEARANCE_LIMIT = 1e9
@@ -184,7 +184,7 @@ def _fit_tubes_to_deadline(
     changing their ``t_rel`` in place, and draw the missing ones between requests. Returns the
     agents answered so (conservatively)."""
     missing = {
-        i: frt.missing_tubes(tube_indices(frt, times))
+        i: frt.missing_tubes(frt.tube_indices(times).tolist())
         for i, frt in sets.items()
         if (times := t_rel[i]) is not None
     }

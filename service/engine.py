@@ -135,6 +135,11 @@ class FRTSet:
         t = min(max(t_rel, 0.0), self.horizon_s)
         return min(math.ceil(t / self.slice_dt - 1e-9), self.n_slices - 1)
 
+    def tube_indices(self, t_rel: np.ndarray) -> np.ndarray:
+        """:meth:`tube_index` of every time in ``t_rel`` (flattened), as one int array."""
+        t = np.clip(np.asarray(t_rel, dtype=np.float64).reshape(-1), 0.0, self.horizon_s)
+        return np.minimum(np.ceil(t / self.slice_dt - 1e-9), self.n_slices - 1).astype(int)
+
     def clearance(self, xy_world: np.ndarray, t_rel: np.ndarray | None = None) -> np.ndarray:
         """Signed distance (m) from each world point to K (negative inside).
 
@@ -144,7 +149,7 @@ class FRTSet:
         xy = to_human_frame(np.asarray(xy_world, dtype=float).reshape(-1, 2), self.pose)
         if t_rel is None:
             return signed_distance(self.tube(self.n_slices - 1), xy)
-        index = [self.tube_index(float(t)) for t in np.asarray(t_rel).reshape(-1)]
+        index = self.tube_indices(t_rel).tolist()
         tubes = {j: self.tube(j) for j in set(index)}
         return signed_distances(np.array([tubes[j] for j in index], dtype=object), xy)
 
@@ -209,9 +214,7 @@ class BoxTubeSet(FRTSet):
             index = np.full(len(xy), self.n_slices - 1)
             result = distance.min(axis=1)
         else:
-            index = np.array(
-                [self.tube_index(float(t)) for t in np.asarray(t_rel).reshape(-1)], dtype=int
-            )
+            index = self.tube_indices(t_rel)
             mask = np.arange(len(b))[None, :] < self.boxes_until[index][:, None]
             result = np.where(mask, distance, np.inf).min(axis=1)
         inside = np.flatnonzero(result < 0)

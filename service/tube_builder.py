@@ -65,13 +65,8 @@ class TubeBuilder:
             self._scheduled = False
 
 
-def tube_indices(frt: FRTSet, t_rel: np.ndarray) -> list[int]:
-    """The tube each point's time falls in (``FRTSet.tube_index``)."""
-    return [frt.tube_index(float(t)) for t in np.asarray(t_rel).reshape(-1)]
-
-
 def within_built_tubes(frt: FRTSet, t_rel: np.ndarray) -> np.ndarray:
     """Times that put each point in the smallest tube already drawn that ends no earlier than its
     own (a superset of its own tube)."""
-    indices = [frt.nearest_built_tube(j) for j in tube_indices(frt, t_rel)]
+    indices = [frt.nearest_built_tube(j) for j in frt.tube_indices(t_rel).tolist()]
     return np.array(indices, dtype=np.float64) * frt.slice_dt

@@ -10,7 +10,7 @@ import pytest
 import shapely
 
 from models.eval_settings import SETTINGS
-from service.engine import FRTEngine, Pose
+from service.engine import FRTEngine, FRTSet, Pose
 from service.field_stack import convex_polygons
 from service.model_runtime import ValueModel
 
@@ -56,3 +56,12 @@ def test_the_outer_tube_is_the_union_of_its_windows() -> None:
         windows = np.stack([support[a : min(a + 4, n)].max(axis=0) for a in range(0, n, 4)])
         direct = shapely.union_all(convex_polygons(frt.bound.directions, windows))
         assert frt.outer_tube(j).symmetric_difference(direct).area < 1e-9
+
+
+def test_tube_indices_match_tube_index_point_by_point() -> None:
+    frt = FRTSet(Pose(0.0, 0.0, 0.0), 0.1, 3.0, 31, conservative=False)
+    times = np.concatenate(
+        [np.random.default_rng(0).uniform(-1, 4, 5000), np.arange(-5, 40) * 0.1, [0.0, 3.0]]
+    )
+    expected = [frt.tube_index(float(t)) for t in times]
+    assert frt.tube_indices(times).tolist() == expected

@@ -12,10 +12,9 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
-import shapely
 from shapely.geometry.base import BaseGeometry
 
-from service.engine import BoxTubeSet, FRTSet, signed_distance
+from service.engine import BoxTubeSet, FRTSet, signed_distance, signed_distances
 
 
 def box_clearances(
@@ -138,10 +137,5 @@ def tube_clearances(
         which += [places[j] for j in index]
     tubes = np.empty(len(tubes_list), dtype=object)
     tubes[:] = tubes_list
-    shapely.prepare(tubes)  # what contains_xy does to a single geometry: in place, kept
-    rows = np.array(which, dtype=np.intp)
-    inside = shapely.contains_xy(tubes[rows], x, y)
-    distance = shapely.distance(shapely.boundary(tubes)[rows], shapely.points(x, y))
-    signed = np.where(inside, -distance, distance)
-    signed = np.where(shapely.is_empty(tubes)[rows], np.inf, signed)
+    signed = signed_distances(tubes, np.array(which, dtype=np.intp), np.stack([x, y], axis=1))
     return list(signed.reshape(len(sets), n))

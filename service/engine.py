@@ -98,12 +98,14 @@ def signed_distance(geometry: BaseGeometry, xy: np.ndarray) -> np.ndarray:
     return np.where(inside, -distance, distance)
 
 
-def signed_distances(geometries: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """``signed_distance(geometries[i], xy[i])`` for every i, in one vectorised call each."""
-    inside = shapely.contains_xy(geometries, xy[:, 0], xy[:, 1])
-    distance = shapely.distance(shapely.boundary(geometries), shapely.points(xy))
+def signed_distances(geometries: np.ndarray, rows: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """``signed_distance(geometries[rows[i]], xy[i])`` for every point i, in one vectorised call
+    each; each geometry is prepared and its boundary taken once, however many points it serves."""
+    shapely.prepare(geometries)  # what contains_xy does to a single geometry: in place, kept
+    inside = shapely.contains_xy(geometries[rows], xy[:, 0], xy[:, 1])
+    distance = shapely.distance(shapely.boundary(geometries)[rows], shapely.points(xy))
     signed = np.where(inside, -distance, distance)
-    return np.where(shapely.is_empty(geometries), np.inf, signed)
+    return np.where(shapely.is_empty(geometries)[rows], np.inf, signed)
 
 
 class FRTSet:
@@ -149,9 +151,10 @@ class FRTSet:
         xy = to_human_frame(np.asarray(xy_world, dtype=float).reshape(-1, 2), self.pose)
         if t_rel is None:
             return signed_distance(self.tube(self.n_slices - 1), xy)
-        index = self.tube_indices(t_rel).tolist()
-        tubes = {j: self.tube(j) for j in set(index)}
-        return signed_distances(np.array([tubes[j] for j in index], dtype=object), xy)
+        unique, rows = np.unique(self.tube_indices(t_rel), return_inverse=True)
+        tubes = np.empty(len(unique), dtype=object)
+        tubes[:] = [self.tube(int(j)) for j in unique]
+        return signed_distances(tubes, rows, xy)
 
     def missing_tubes(self, indices: list[int]) -> list[int]:
         """The tubes among ``indices`` not drawn yet (none where tubes cost nothing to draw)."""

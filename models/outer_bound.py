@@ -150,10 +150,13 @@ def outer_bound(
     steps: int = 60,
     substeps: int = 8,
     initial_set: InitialSet = INITIAL_SET,
+    support_directions: int = SUPPORT_DIRECTIONS,
 ) -> OuterBound:
     """Interval propagation over ``steps`` sub-intervals of [0, horizon].
 
     ``bounds`` are the 8 bound columns in contract order (models.contract.BOUND_COLUMNS).
+    ``support_directions=0`` skips the support functions (boxes only: the service's conservative
+    set needs nothing else, and the directions are two thirds of the work).
     """
     u1_lo_s, u2_lo_s, u1_lo_e, u2_lo_e, u1_hi_s, u2_hi_s, u1_hi_e, u2_hi_e = map(float, bounds)
     m = initial_set
@@ -192,10 +195,12 @@ def outer_bound(
 
     # Support functions in M directions: h(phi) bounds p . (cos phi, sin phi) by the same interval
     # arithmetic as the box (which is the special case of the four axis directions).
-    directions = np.arange(SUPPORT_DIRECTIONS) * (2 * math.pi / SUPPORT_DIRECTIONS)
-    _, c_hi = cos_range(th_lo[:, None] - directions[None, :], th_hi[:, None] - directions[None, :])
-    rate = np.where(c_hi >= 0, sp_hi[:, None] * c_hi, sp_lo[:, None] * c_hi)
-    support = np.concatenate([np.full((1, len(directions)), r), r + np.cumsum(rate * h, axis=0)])
+    directions = np.arange(support_directions) * (2 * math.pi / max(support_directions, 1))
+    support = np.full((len(fine), len(directions)), r)
+    if support_directions:
+        _, c_hi = cos_range(th_lo[:, None] - directions, th_hi[:, None] - directions)
+        rate = np.where(c_hi >= 0, sp_hi[:, None] * c_hi, sp_lo[:, None] * c_hi)
+        support[1:] += np.cumsum(rate * h, axis=0)
 
     idx = np.arange(0, steps + 1) * substeps
     box_at = np.stack([x_lo[idx], x_hi[idx], y_lo[idx], y_hi[idx]], axis=1)

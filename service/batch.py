@@ -2,8 +2,8 @@
 
 A planner's check of 50 agents whose exact sets are late answers from 50 :class:`BoxTubeSet`\\ s;
 ``BoxTubeSet.clearance`` one by one is ~15 small numpy calls per agent. Here the agents' boxes are
-stacked ([A, M, 4]) and the distances of every point to every box of every agent come from one set
-of calls; the values are the same as ``BoxTubeSet.clearance``'s (same operations, same order).
+stacked ([A, M, 4]) and the distances of every point to every box of every agent come from one
+call of the same kernel (``service.engine.box_union_distances``), so the values are the same.
 """
 
 from __future__ import annotations
@@ -14,7 +14,13 @@ from collections.abc import Sequence
 import numpy as np
 from shapely.geometry.base import BaseGeometry
 
-from service.engine import BoxTubeSet, FRTSet, signed_distance, signed_distances
+from service.engine import (
+    BoxTubeSet,
+    FRTSet,
+    box_union_distances,
+    signed_distance,
+    signed_distances,
+)
 
 
 def box_clearances(
@@ -47,8 +53,6 @@ def _same_size(
     x = (c * dx0 + s_ * dy0)[:, :, None]  # the human frame, as to_human_frame computes it
     y = (-s_ * dx0 + c * dy0)[:, :, None]
     b = np.stack([s.boxes for s in sets])[:, None, :, :]  # [A, 1, M, 4]
-    dx = np.maximum(b[..., 0] - x, x - b[..., 1])  # [A, N, M]
-    dy = np.maximum(b[..., 2] - y, y - b[..., 3])
     n_points, n_boxes = xy_world.shape[0], b.shape[2]
     index = np.empty((len(sets), n_points), dtype=int)
     for a, (frt, t) in enumerate(zip(sets, t_rel, strict=True)):
@@ -56,10 +60,12 @@ def _same_size(
             index[a] = frt.n_slices - 1
         else:
             index[a] = frt.tube_indices(t)
-    until = np.stack([frt.boxes_until for frt in sets])  # [A, J]
-    limit = np.take_along_axis(until, index, axis=1)  # [A, N]
-    mask = np.arange(n_boxes)[None, None, :] < limit[:, :, None]
-    result = _nearest(dx, dy, mask)
+    counted = None
+    if any(t is not None for t in t_rel):
+        until = np.stack([frt.boxes_until for frt in sets])  # [A, J]
+        limit = np.take_along_axis(until, index, axis=1)  # [A, N]
+        counted = np.arange(n_boxes)[None, None, :] < limit[:, :, None]
+    result = box_union_distances(x, y, b, counted)
     human = np.concatenate([x, y], axis=2)  # [A, N, 2]
     answers = []
     any_inside = (result < 0).any(axis=1)
@@ -74,30 +80,6 @@ def _same_size(
             row[rows] = signed_distance(frt.tube(int(j)), human[a, rows])
         answers.append(row)
     return answers
-
-
-def _nearest(dx: np.ndarray, dy: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Over the last axis (boxes) where ``mask``: the minimum of each box's signed distance,
-    ``max(dx, dy)`` inside it (both <= 0) and ``hypot(max(dx, 0), max(dy, 0))`` outside; inf if
-    no box counts. The same values as computing every box's distance, with hypot (~25 ns each,
-    most of the work for 50 agents' 120 boxes) only where it can be the minimum:
-
-    * a point inside a box (``max(dx, dy) <= 0``) has every outside box farther (> 0), so its
-      minimum is the least ``max(dx, dy)``;
-    * outside every box, ``hypot(p, q) >= max(p, q) = max(dx, dy)``, so only boxes whose
-      ``max(dx, dy)`` is at most the hypot of the box with the least one can hold the minimum.
-    """
-    m = np.where(mask, np.maximum(dx, dy), np.inf)
-    least = m.min(axis=-1)
-    best = m.argmin(axis=-1)[..., None]
-    upper = np.hypot(
-        np.maximum(np.take_along_axis(dx, best, -1), 0.0),
-        np.maximum(np.take_along_axis(dy, best, -1), 0.0),
-    )
-    candidate = (m <= upper) & (least > 0.0)[..., None]
-    distance = np.full(dx.shape, np.inf)
-    distance[candidate] = np.hypot(np.maximum(dx[candidate], 0.0), np.maximum(dy[candidate], 0.0))
-    return np.where(least <= 0.0, least, distance.min(axis=-1))
 
 
 def tube_clearances(

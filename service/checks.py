@@ -115,14 +115,11 @@ async def answer_states(
     # Cached sets first, without a task each (a planner's check of 50 agents mostly finds them).
     exact = services.cached_exact(jobs)
     late = [i for i, frt in enumerate(exact) if frt is None]
-    # The late ones: only sets that may still make it are waited for, all in one wait, with the
-    # conservative sets still on their way from their worker (~1 ms each to build here instead).
-    futures = {i: services.exact_future(jobs[i], budget) for i in late}
+    # The late ones: only sets that may still make it are waited for, all in one wait.
+    futures = dict(zip(late, services.exact_futures([jobs[i] for i in late], budget), strict=True))
     waiting = {i: f for i, f in futures.items() if f is not None}
-    fallbacks = [services.conservative_on_its_way(jobs[i]) for i in late]
-    awaited = [*waiting.values(), *(f for f in fallbacks if f is not None)]
-    if awaited and budget > 0:
-        await asyncio.wait({asyncio.wrap_future(f) for f in awaited}, timeout=budget)
+    if waiting and budget > 0:
+        await asyncio.wait({asyncio.wrap_future(f) for f in waiting.values()}, timeout=budget)
     for i, future in waiting.items():
         if future.done() and not future.cancelled() and future.exception() is None:
             exact[i] = future.result()
@@ -305,7 +302,8 @@ async def check_agents_at_once(
         ids = list(dict.fromkeys(request.agent_ids))  # drop repeats, keep the order
         check_agents("agent_ids", ids, settings)
     states, missing = [], []
-    for agent_id, state in zip(ids, await services.store.get_many(ids), strict=True):
+    # Read only here: the states may be shared with other checks (no copy per agent).
+    for agent_id, state in zip(ids, await services.store.get_many(ids, shared=True), strict=True):
         if state is None:
             missing.append(agent_id)
         else:

@@ -6,9 +6,8 @@ worker process loads the model once (:func:`init_worker`, from the same model pa
 and runs :class:`ExactTask`\\ s; the result, a :class:`~service.engine.FieldTubeSet` with its
 eagerly built whole tube and the small arrays its slices are drawn from later, comes back by pickle
 between our own processes (trusted IPC, :class:`~service.pipe_pool.PipePool`). Its lock does not pickle: :func:`_reduce_frt_set` drops it
-and :func:`_rebuild_frt_set` makes a fresh one. Conservative sets (:class:`ConservativeTask`, ~1 ms
-each, needed at once by checks that find the exact set late) have a pool of their own at the
-server's priority, so that they never queue behind exact sets and cost the event loop nothing.
+and :func:`_rebuild_frt_set` makes a fresh one. Conservative sets (boxes only, well under the
+~1 ms a task's round trip costs the server) are built by the server itself.
 
 Exact-set workers run at a lower priority (``nice``) than the server, so that on a busy machine the
 event loop answers first and exact sets use what is left. A worker exits when its server does (even
@@ -89,20 +88,6 @@ class ExactTask:
         if engine is None:
             raise RuntimeError("no engine in this process")
         return engine.exact(self.pose, self.v_start, self.bounds)
-
-
-@dataclass
-class ConservativeTask:
-    """``engine.conservative(pose, v_start, bounds)`` in a worker process (see :class:`ExactTask`)."""
-
-    pose: Pose
-    v_start: float
-    bounds: np.ndarray
-
-    def __call__(self) -> FRTSet:
-        if _engine is None:
-            raise RuntimeError("no engine in this process")
-        return _engine.conservative(self.pose, self.v_start, self.bounds)
 
 
 def init_worker(model_path: str, nice: int, parent_pid: int) -> None:

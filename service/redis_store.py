@@ -194,7 +194,9 @@ class RedisAgentStore:
         raw = await self._call(lambda: self._redis.get(self.key(agent_id)))
         return None if raw is None else decode_state(raw)
 
-    async def get_many(self, agent_ids: list[str]) -> list[AgentState | None]:
+    async def get_many(
+        self, agent_ids: list[str], *, shared: bool = False
+    ) -> list[AgentState | None]:
         if not agent_ids:
             return []
         keys = [self.key(agent_id) for agent_id in agent_ids]

@@ -8,10 +8,11 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import functools
 import logging
 import time
 from collections.abc import Sequence
-from concurrent.futures import BrokenExecutor, Executor, Future
+from concurrent.futures import Future
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -22,7 +23,7 @@ from starlette.requests import HTTPConnection
 
 from service.engine import FRTEngine, FRTSet, Pose
 from service.errors import ServiceUnavailableError
-from service.exact_worker import ConservativeTask, ExactTask, start_pool, warm_up_task
+from service.exact_worker import ExactTask, start_pool, warm_up_task
 from service.memory import freeze_start_up_objects, keep_freed_memory
 from service.metrics import Metrics
 from service.model_runtime import ValueModel
@@ -50,6 +51,21 @@ class FRTJob:
         return cls(FRTKey.of(agent_id, version, inputs), pose, float(v_start), bounds)
 
 
+@functools.lru_cache(maxsize=4096)
+def _job_of(
+    agent_id: str,
+    version: int,
+    x: float,
+    y: float,
+    heading: float,
+    v_start: float,
+    bounds: tuple[float, ...],
+) -> FRTJob:
+    """The job of an agent's state, made once per version (a planner checks each agent at 10 Hz;
+    the key's digest of the inputs is the cost). Keyed by every input, so it cannot go stale."""
+    return FRTJob.make(agent_id, version, Pose(x, y, heading), v_start, bounds)
+
+
 @dataclass
 class Services:
     settings: Settings
@@ -61,10 +77,6 @@ class Services:
     model_name: str | None = None
     model_error: str | None = "model is loading"
     _loader: asyncio.Task[None] | None = field(default=None, repr=False)
-    #: A worker process for conservative sets (None: they are built on threads of this process).
-    _conservative_pool: Executor | None = field(default=None, repr=False)
-    #: Conservative sets on their way back from that worker.
-    _conservative_pending: dict[FRTKey, Future[Any]] = field(default_factory=dict, repr=False)
     #: Recent seconds per agent to answer a collision check once its sets are known (moving average).
     _answer_s_per_agent: float = field(default=0.0, repr=False)
     #: Draws the tubes time-indexed checks need, now or between requests.
@@ -98,9 +110,6 @@ class Services:
         if self._loader is not None and not self._loader.done():
             self._loader.cancel()
         self.scheduler.shutdown()
-        pool, self._conservative_pool = self._conservative_pool, None
-        if pool is not None:
-            pool.shutdown(wait=True, cancel_futures=True)
         await self.store.close()
 
     def load_model(self) -> None:
@@ -151,13 +160,6 @@ class Services:
             for kind, t in (("tube", None), ("slice", 1.0)):  # and the first contours drawn here
                 frt.geojson(kind, t, self.settings.collision_radius)
         self.scheduler.use_executor(pool)
-        try:  # at the server's priority: checks that find the exact set late need these at once
-            self._conservative_pool = start_pool(path, 1, 0)
-        except Exception as exc:
-            log.warning(
-                "conservative-set worker not started: building them on threads",
-                extra={"error": repr(exc)},
-            )
         log.info(
             "FRT worker processes started",
             extra={"workers": workers, "seconds": round(time.perf_counter() - start, 3)},
@@ -170,9 +172,14 @@ class Services:
 
     # ------------------------------------------------------------------ FRT sets
     def job_for(self, state: AgentState) -> FRTJob:
-        pose = Pose(state.x, state.y, state.heading)
-        return FRTJob.make(
-            state.agent_id, state.frt_version, pose, state.speed, state.control_bounds
+        return _job_of(
+            state.agent_id,
+            state.frt_version,
+            state.x,
+            state.y,
+            state.heading,
+            state.speed,
+            tuple(state.control_bounds),
         )
 
     def submit(self, job: FRTJob) -> None:
@@ -188,10 +195,12 @@ class Services:
             self.metrics.frt_cache.labels("hit").inc(hits)
         return found
 
-    def exact_future(self, job: FRTJob, timeout_s: float) -> Future[Any] | None:
-        """The future of ``job``'s exact set if it may be ready within ``timeout_s``, else None
-        (``FRTScheduler.waitable``; starts the set if nobody has)."""
-        return self.scheduler.waitable(job.key, self.exact_task(job), timeout_s)
+    def exact_futures(self, jobs: Sequence[FRTJob], timeout_s: float) -> list[Future[Any] | None]:
+        """Per job, the future of its exact set if it may be ready within ``timeout_s``, else None
+        (``FRTScheduler.waitable_many``; starts the sets nobody has)."""
+        return self.scheduler.waitable_many(
+            [(job.key, self.exact_task(job)) for job in jobs], timeout_s
+        )
 
     async def exact_within(self, job: FRTJob, timeout_s: float) -> FRTSet | None:
         """The exact set if it is ready within ``timeout_s`` (starting it if nobody has), else None."""
@@ -202,51 +211,11 @@ class Services:
         return ExactTask(job.pose, job.v_start, job.bounds, self.require_engine())
 
     def prepare_conservative(self, job: FRTJob) -> None:
-        """Build the conservative set of ``job`` now, in the conservative-set worker process (or a
-        thread), so that a collision check that finds the exact set late looks it up instead of
-        building it (~1 ms each: 50 agents in one check would otherwise miss a 20 ms deadline on
-        this alone)."""
-        pool = self._conservative_pool
-        if pool is None:
-            asyncio.get_running_loop().run_in_executor(None, self.conservative, job)
-            return
-        try:
-            handle = pool.submit(timed, ConservativeTask(job.pose, job.v_start, job.bounds))
-        except Exception as exc:  # a broken pool: threads from now on
-            self._conservative_failed(exc)
-            asyncio.get_running_loop().run_in_executor(None, self.conservative, job)
-            return
-        self._conservative_pending[job.key] = handle
-        handle.add_done_callback(lambda done: self._conservative_done(job, done))
-
-    def conservative_on_its_way(self, job: FRTJob) -> Future[Any] | None:
-        """The worker's future of ``job``'s conservative set if it is not cached yet, else None:
-        a check can wait for it briefly rather than build it a second time."""
-        if self.conservative_cache.peek(job.key) is not None:
-            return None
-        return self._conservative_pending.get(job.key)
-
-    def _conservative_done(self, job: FRTJob, done: Future[Any]) -> None:
-        self._conservative_pending.pop(job.key, None)
-        if done.cancelled():
-            return
-        error = done.exception()
-        if isinstance(error, BrokenExecutor):
-            self._conservative_failed(error)
-        if error is not None:
-            return  # a check that needs the set builds it (and answers for a failure there)
-        result, seconds = done.result()
-        self.metrics.frt_compute_seconds.labels("conservative").observe(seconds)
-        self.conservative_cache.put(job.key, result)
-
-    def _conservative_failed(self, error: BaseException) -> None:
-        pool, self._conservative_pool = self._conservative_pool, None
-        if pool is not None:
-            log.error(
-                "conservative-set worker failed: building them on threads from now on",
-                extra={"error": repr(error)},
-            )
-            pool.shutdown(wait=False, cancel_futures=True)
+        """Build the conservative set of ``job`` now, on the caller's thread (boxes only: ~1 ms
+        here, less than sending it to a worker process and back costs this process), so that a
+        collision check that finds the exact set late looks it up: a planner's check of 50 agents
+        must not build 50 of them within its deadline."""
+        self.conservative(job)
 
     def conservative(self, job: FRTJob) -> FRTSet:
         """The engine's fast set that contains the exact one (blocking: call from a thread).

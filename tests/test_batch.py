@@ -54,3 +54,23 @@ def test_batched_exact_clearances_equal_the_sets_own(analytic_model_path: Path) 
         assert np.array_equal(mine, frt.clearance(xy, t))
     assert any((c < 0).any() for c in together) and any((c > 0).any() for c in together)
     assert tube_clearances([], xy, []) == []
+
+
+def test_box_clearances_are_signed_distances_to_the_union_of_boxes(
+    analytic_model_path: Path,
+) -> None:
+    """Against shapely's distance to the union of the boxes (an independent computation)."""
+    import shapely
+
+    from service.engine import signed_distance, to_human_frame
+
+    engine = FRTEngine(ValueModel.load(analytic_model_path))
+    rng = np.random.default_rng(5)
+    sets = random_sets(engine.conservative, rng, 6)
+    xy = rng.uniform(-30, 60, size=(60, 2))
+    for frt, mine in zip(sets, box_clearances(sets, xy, [None] * len(sets)), strict=True):
+        b = frt.boxes
+        union = shapely.union_all(shapely.box(b[:, 0], b[:, 2], b[:, 1], b[:, 3]))
+        truth = signed_distance(union, to_human_frame(xy, frt.pose))
+        np.testing.assert_allclose(mine, truth, rtol=0, atol=1e-9)
+    assert any((c < 0).any() for c in box_clearances(sets, xy, [None] * len(sets)))

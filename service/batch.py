@@ -18,7 +18,6 @@ from service.engine import (
     BoxTubeSet,
     FRTSet,
     box_union_distances,
-    signed_distance,
     signed_distances,
 )
 
@@ -65,21 +64,7 @@ def _same_size(
         until = np.stack([frt.boxes_until for frt in sets])  # [A, J]
         limit = np.take_along_axis(until, index, axis=1)  # [A, N]
         counted = np.arange(n_boxes)[None, None, :] < limit[:, :, None]
-    result = box_union_distances(x, y, b, counted)
-    human = np.concatenate([x, y], axis=2)  # [A, N, 2]
-    answers = []
-    any_inside = (result < 0).any(axis=1)
-    for a, frt in enumerate(sets):
-        row = result[a]
-        if not any_inside[a]:
-            answers.append(row)
-            continue
-        inside = np.flatnonzero(row < 0)
-        for j in np.unique(index[a, inside]):  # inside: the depth in the union, not in one box
-            rows = inside[index[a, inside] == j]
-            row[rows] = signed_distance(frt.tube(int(j)), human[a, rows])
-        answers.append(row)
-    return answers
+    return list(box_union_distances(x, y, b, counted))
 
 
 def tube_clearances(

@@ -84,7 +84,7 @@ def clearance_rows(distance_to_k: np.ndarray, radii: np.ndarray) -> tuple[np.nda
     return clearance, np.where(hit.any(axis=1), hit.argmax(axis=1), -1)
 
 
-@lru_cache(maxsize=4096)
+@lru_cache(maxsize=512)
 def _beta(betas: tuple[float, ...], log_probs: tuple[float, ...]) -> float:
     """beta of a stored belief (a planner checks each agent's state many times: validated once)."""
     return Belief.from_dict({"betas": betas, "log_probs": log_probs}).beta

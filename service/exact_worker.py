@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from models.contract import N_INPUTS
-from service.engine import BoxTubeSet, FieldTubeSet, FRTEngine, FRTSet, Pose, SliceField
+from service.engine import BoxTubeSet, FieldTubeSet, FRTEngine, FRTSet, Pose
 from service.memory import freeze_start_up_objects, keep_freed_memory
 from service.pipe_pool import PipePool
 
@@ -42,8 +42,14 @@ _LOCK_TYPES = (type(threading.Lock()), type(threading.RLock()))
 _engine: FRTEngine | None = None
 
 
+#: Caches a set rebuilds on demand, not sent back: the outer windows' ~30 polygons would stay
+#: in the server's FRT cache as objects its garbage collector walks (service.engine.SliceFields).
+_NOT_SENT = {"_outer_windows": None}
+
+
 def _reduce_frt_set(frt: FRTSet) -> tuple[Any, ...]:
     state = {k: (None if isinstance(v, _LOCK_TYPES) else v) for k, v in vars(frt).items()}
+    state.update({k: v for k, v in _NOT_SENT.items() if k in state})
     locks = [k for k, v in vars(frt).items() if isinstance(v, _LOCK_TYPES)]
     return _rebuild_frt_set, (type(frt), state, locks)
 
@@ -58,16 +64,6 @@ def _rebuild_frt_set(cls: type, state: dict[str, Any], locks: list[str]) -> FRTS
 
 for _cls in (FieldTubeSet, BoxTubeSet):
     copyreg.pickle(_cls, _reduce_frt_set)
-
-
-def _reduce_slice_field(field: SliceField) -> tuple[Any, ...]:
-    """An exact set holds two lists of ~30 small fields: rebuilt by their constructor rather than
-    as objects plus state dicts, the server unpickles them ~2x faster (~0.1 ms per exact set, on
-    the thread that hands results to the event loop); the same fields."""
-    return SliceField, (field.k0, field.i0, field.values)
-
-
-copyreg.pickle(SliceField, _reduce_slice_field)
 
 
 @dataclass

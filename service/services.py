@@ -51,7 +51,9 @@ class FRTJob:
         return cls(FRTKey.of(agent_id, version, inputs), pose, float(v_start), bounds)
 
 
-@functools.lru_cache(maxsize=4096)
+#: Enough for the largest multi-agent check (max_agents_per_check) twice over; each entry is a
+#: few objects the garbage collector walks, so not more.
+@functools.lru_cache(maxsize=512)
 def _job_of(
     agent_id: str,
     version: int,

@@ -157,7 +157,10 @@ class CollisionAnswer(Response):
     collision: bool
     first_collision_index: int | None
     first_collision_time: float | None
-    clearance: list[float] = Field(description="distance to K minus R_col per point; < 0 inside C")
+    clearance: list[float] = Field(
+        description="distance to K minus R_col per point; < 0 inside C (a conservative answer "
+        "measures to the set that contains K, and inside it may state less than the full depth)"
+    )
 
 
 # ------------------------------------------------------------------------------------- agents

@@ -79,19 +79,18 @@ class _Corridors:
         self.step_hi = np.maximum(a_hi[:, :-1], a_hi[:, 1:]) * self.h[:, None]
         self.v_start = x[:, COL["v_start"]].astype(float)
 
-        # Backward speed corridor from v_f: v(s) <= v_f - (U2_lo(t) - U2_lo(s)) (braking from v(s)
-        # ends no lower than that, the stop rule only raises it) and v(s) >= v_f - integral over
-        # [s, t] of max(u2_hi, 0) (no faster growth is possible).
-        v_f = x[:, COL["speed"]].astype(float)[:, None]
-        back_hi = v_f - (u2_lo_cum[:, -1:] - u2_lo_cum)
+        # Backward speed corridor from a final speed in [v_lo, v_hi]: v(s) <= v_hi - (U2_lo(t) -
+        # U2_lo(s)) (braking from v(s) ends no lower than that, the stop rule only raises it) and
+        # v(s) >= v_lo - integral over [s, t] of max(u2_hi, 0) (no faster growth is possible).
+        # Stored as offsets from the final speed.
+        self.brake_after = u2_lo_cum[:, -1:] - u2_lo_cum
         gain = np.maximum(self.step_hi, 0.0)
-        gain_after = np.concatenate(
+        self.gain_after = np.concatenate(
             [np.cumsum(gain[:, ::-1], axis=1)[:, ::-1], np.zeros((self.n, 1))], axis=1
         )
-        back_lo = v_f - gain_after
-        self.back_speed_nodes = (back_lo, back_hi)
-        self.back_speed = (_hull(back_lo, 0.0, upper=False), _hull(back_hi, pad_u2_lo, upper=True))
+        self.pad_u2_lo = pad_u2_lo
         self.position = x[:, [COL["px"], COL["py"]]].astype(float)
+        self.final_speed = x[:, COL["speed"]].astype(float)
 
     def subset(self, rows: np.ndarray) -> _Corridors:
         """The corridors of some of the states."""
@@ -105,17 +104,25 @@ class _Corridors:
         part.n = len(rows)
         return part
 
-    def excluded(self, c: np.ndarray, theta_f: np.ndarray, initial_set: InitialSet) -> np.ndarray:
-        """True where no trajectory from {l <= c} [N] ends at the states with final (unwrapped)
-        heading theta_f [N]."""
+    def supports(
+        self,
+        c: np.ndarray,
+        theta_f: tuple[np.ndarray, np.ndarray],
+        speed_f: tuple[np.ndarray, np.ndarray],
+        initial_set: InitialSet,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Support values [N, M] in ``DIRECTIONS`` of a convex polygon that contains every position
+        at time t of a trajectory from {l <= c} [N] whose final (unwrapped) heading lies in
+        ``theta_f`` = (lo, hi) [N] and final speed in ``speed_f`` = (lo, hi) [N]; and [N] True where
+        no such trajectory exists (the corridors are empty somewhere)."""
         m = initial_set
         grow = 1.0 + c / m.radius_m
         eps_th = (m.heading_margin_rad * grow)[:, None]
         eps_v = m.speed_margin_mps * grow
 
         f_lo, f_hi = self.u1_lo_cum - eps_th, self.u1_hi_cum + eps_th
-        b_lo = theta_f[:, None] - (self.u1_hi_cum[:, -1:] - self.u1_hi_cum)
-        b_hi = theta_f[:, None] - (self.u1_lo_cum[:, -1:] - self.u1_lo_cum)
+        b_lo = theta_f[0][:, None] - (self.u1_hi_cum[:, -1:] - self.u1_hi_cum)
+        b_hi = theta_f[1][:, None] - (self.u1_lo_cum[:, -1:] - self.u1_lo_cum)
         empty = np.any((f_lo > b_hi + 1e-9) | (b_lo > f_hi + 1e-9), axis=1)
         th_lo = np.maximum(
             _hull(f_lo, self.pad_u1_lo, upper=False), _hull(b_lo, self.pad_u1_hi, upper=False)
@@ -126,10 +133,16 @@ class _Corridors:
 
         v_lo_f = _stop_rule_paths(np.maximum(self.v_start - eps_v, 0.0), self.step_lo)
         v_hi_f = _stop_rule_paths(self.v_start + eps_v, self.step_hi)
-        back_lo_nodes, back_hi_nodes = self.back_speed_nodes
+        back_lo_nodes = speed_f[0][:, None] - self.gain_after
+        back_hi_nodes = speed_f[1][:, None] - self.brake_after
         empty |= np.any((v_lo_f > back_hi_nodes + 1e-9) | (back_lo_nodes > v_hi_f + 1e-9), axis=1)
-        sp_lo = np.maximum(np.maximum(_hull(v_lo_f, 0.0, upper=False), self.back_speed[0]), 0.0)
-        sp_hi = np.minimum(_hull(v_hi_f, 0.0, upper=True), self.back_speed[1])
+        sp_lo = np.maximum(
+            np.maximum(_hull(v_lo_f, 0.0, upper=False), _hull(back_lo_nodes, 0.0, upper=False)),
+            0.0,
+        )
+        sp_hi = np.minimum(
+            _hull(v_hi_f, 0.0, upper=True), _hull(back_hi_nodes, self.pad_u2_lo, upper=True)
+        )
         sp_hi = np.maximum(sp_hi, sp_lo)  # an empty sub-interval is caught at the nodes above
         th_hi = np.maximum(th_hi, th_lo)
 
@@ -138,6 +151,13 @@ class _Corridors:
         )
         rate = np.where(c_hi >= 0, sp_hi[:, :, None] * c_hi, sp_lo[:, :, None] * c_hi)
         support = m.radius_m + c[:, None] + rate.sum(axis=1) * self.h[:, None]  # [N, M]
+        return support, empty
+
+    def excluded(self, c: np.ndarray, theta_f: np.ndarray, initial_set: InitialSet) -> np.ndarray:
+        """True where no trajectory from {l <= c} [N] ends at the states with final (unwrapped)
+        heading theta_f [N]."""
+        speed = self.final_speed
+        support, empty = self.supports(c, (theta_f, theta_f), (speed, speed), initial_set)
         reach = self.position @ np.stack([np.cos(DIRECTIONS), np.sin(DIRECTIONS)])
         return empty | np.any(reach > support + 1e-9, axis=1)
 
@@ -259,3 +279,49 @@ def main() -> None:
 
 if __name__ == "__main__":
     main()
+
+
+def partition_supports(
+    v_start: float,
+    bounds: np.ndarray,
+    times: np.ndarray,
+    heading_bins: int,
+    speed_bins: int,
+    steps: int = 24,
+    horizon: float = HORIZON_S,
+    initial_set: InitialSet = INITIAL_SET,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Outer polygons of the positions reachable at exactly each of ``times`` [J], one per final
+    heading x final speed bin: supports [J, B, M] in ``DIRECTIONS`` (B = heading_bins x
+    speed_bins) and [J, B] True for bins no trajectory reaches.
+
+    The bins split the forward intervals of the final (unwrapped) heading and speed, which every
+    trajectory's final values lie in, so the union of a time's polygons contains every position
+    reachable then; unlike one convex polygon, it has the notch behind a car that can turn round.
+    """
+    times = np.asarray(times, dtype=float)
+    n_bins = heading_bins * speed_bins
+    x = np.zeros((len(times) * n_bins, len(COL)))
+    x[:, COL["t"]] = np.repeat(times, n_bins)
+    x[:, COL["v_start"]] = v_start
+    x[:, 6:] = np.asarray(bounds, dtype=float)
+    corridors = _Corridors(x, steps, horizon)
+    m = initial_set
+    th_lo = corridors.u1_lo_cum[:, -1] - m.heading_margin_rad
+    th_hi = corridors.u1_hi_cum[:, -1] + m.heading_margin_rad
+    sp_lo = _stop_rule_paths(
+        np.maximum(corridors.v_start - m.speed_margin_mps, 0.0), corridors.step_lo
+    )[:, -1]
+    sp_hi = _stop_rule_paths(corridors.v_start + m.speed_margin_mps, corridors.step_hi)[:, -1]
+    bin_index = np.tile(np.arange(n_bins), len(times))
+    h_edges = (bin_index // speed_bins)[:, None] + np.array([0.0, 1.0])
+    s_edges = (bin_index % speed_bins)[:, None] + np.array([0.0, 1.0])
+    theta = th_lo[:, None] + (th_hi - th_lo)[:, None] * h_edges / heading_bins
+    speed = sp_lo[:, None] + (sp_hi - sp_lo)[:, None] * s_edges / speed_bins
+    support, empty = corridors.supports(
+        np.zeros(len(x)), (theta[:, 0], theta[:, 1]), (speed[:, 0], speed[:, 1]), initial_set
+    )
+    return (
+        support.reshape(len(times), n_bins, len(DIRECTIONS)),
+        empty.reshape(len(times), n_bins),
+    )

@@ -76,3 +76,51 @@ def test_training_states_carry_their_bound() -> None:
     x, bound = sample_bounded_states(4, 32, np.random.default_rng(0))
     assert len(x) > 32 and np.all(bound >= 0)
     np.testing.assert_array_equal(value_lower_bound(x), bound)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_partition_polygons_hold_every_simulated_position(seed: int) -> None:
+    """The union of a time's heading x speed bin polygons (models.corridor_bound.partition_supports)
+    contains the position of every trajectory from the initial set at that time: wide, shrinking
+    and random settings, switching and extremal schedules, edge starts."""
+    from models.corridor_bound import DIRECTIONS, partition_supports
+
+    rng = np.random.default_rng(seed)
+    named = {s.name: s for s in SETTINGS}
+    settings = [
+        (named[name].v_start, named[name].bounds())
+        for name in ("urban_wide", "shrinking_wide_to_narrow", "growing_narrow_to_wide")
+    ]
+    settings += [(float(p[COL["v_start"]]), p[6:]) for p in sample_parameters(3, rng)]
+    schedules = (sample_control_schedules, sample_reference_schedules)[seed]
+    normals = np.stack([np.cos(DIRECTIONS), np.sin(DIRECTIONS)])
+    n = 2000
+    for v_start, bounds in settings:
+        params = np.zeros((n, N_INPUTS))
+        params[:, 6:] = bounds
+        params[:, COL["v_start"]] = v_start
+        start = sample_initial_states(params[:, COL["v_start"]], rng, on_boundary=0.5)
+        a1, a2, sw = schedules(n, HORIZON_S, rng)
+        _, trace = rk4_rollout(start, params, np.full(n, HORIZON_S), a1, a2, sw, 150, record=True)
+        picked = trace[29::40]
+        times = np.array([float(tau[0]) for tau, _ in picked])
+        support, empty = partition_supports(v_start, bounds, times, 12, 4)
+        for j, (_, state) in enumerate(picked):
+            reach = np.stack([state[0], state[1]], axis=1) @ normals  # [n, M]
+            inside = np.all(reach[:, None, :] <= support[j][None] + 1e-9, axis=2) & ~empty[j]
+            assert inside.any(axis=1).all(), (v_start, bounds, times[j])
+
+
+def test_partition_polygons_cut_into_the_notch_the_convex_polygon_covers() -> None:
+    """urban_wide at t = 3 s: 20 m behind the start is inside the convex outer polygon and outside
+    every one of 16 x 6 heading x speed bin polygons."""
+    from models.corridor_bound import DIRECTIONS, partition_supports
+
+    setting = {s.name: s for s in SETTINGS}["urban_wide"]
+    ob = outer_bound(setting.v_start, setting.bounds())
+    row = int(np.argmin(np.abs(ob.times - HORIZON_S)))
+    behind = np.array([-20.0, 0.0])
+    assert shapely.Polygon(ob.polygons_at([row])[0]).contains(shapely.Point(*behind))
+    support, empty = partition_supports(setting.v_start, setting.bounds(), [HORIZON_S], 16, 6)
+    reach = behind @ np.stack([np.cos(DIRECTIONS), np.sin(DIRECTIONS)])
+    assert not (np.all(reach[None, :] <= support[0], axis=1) & ~empty[0]).any()

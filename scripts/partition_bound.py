@@ -1,0 +1,123 @@
+"""What a sound heading x speed partition of the outer bound would cut from the served tube.
+
+``python scripts/partition_bound.py`` (~2 min): for the evaluation settings whose tubes reach far
+beyond the rollout cells (the notch behind a car that can turn round), the served tube (the
+engine's, as `make evaluate` measures it) is cut to the union over instants 0.1 s apart of the
+partition polygons of ``models.corridor_bound.partition_supports`` (one convex polygon per final
+heading x final speed bin, each grown by how far a car moves in half an instant), and both are
+compared with the rollout cells as in ``models.evaluate`` (recall, IoU, "beyond" p95). It also
+times the partition per set: whether the cut could run online.
+
+The cut is sound (tests/test_corridor_bound.py: every simulated position lies in its time's union),
+so recall must stay 1; the question is how much of the notch it removes, and at what cost.
+Writes ``results/partition_bound.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import shapely
+from tqdm import tqdm
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from models.corridor_bound import DIRECTIONS, partition_supports  # noqa: E402
+from models.eval_settings import SETTINGS  # noqa: E402
+from models.evaluate import compare_cells, model_cells, simulate, swept_cells  # noqa: E402
+from models.outer_bound import half_plane_polygons  # noqa: E402
+from service.engine import FRTEngine, Pose  # noqa: E402
+from service.model_runtime import ValueModel  # noqa: E402
+
+NAMES = (
+    "urban_wide",
+    "shrinking_wide_to_narrow",
+    "low_confidence_urban",
+    "fast_wide_limits",
+    "growing_narrow_to_wide",
+)
+TIMES = (2.0, 3.0)
+INSTANT_S = 0.1
+
+
+def partition_tube(
+    v_start: float, bounds: np.ndarray, t: float, bins: tuple[int, int], speed_max: float
+) -> tuple[shapely.Geometry, float]:
+    """The union over instants up to t of the bin polygons, each grown by speed_max * dt / 2
+    (plus the initial disc), and the seconds the partition took."""
+    times = np.arange(1, round(t / INSTANT_S) + 1) * INSTANT_S
+    started = time.perf_counter()
+    support, empty = partition_supports(v_start, bounds, times, *bins)
+    parts = [shapely.Point(0.0, 0.0).buffer(0.6)]
+    for j in range(len(times)):
+        polygons = half_plane_polygons(DIRECTIONS, support[j][~empty[j]])
+        union = shapely.union_all([shapely.Polygon(p) for p in polygons])
+        parts.append(union.buffer(speed_max * INSTANT_S / 2 + 0.05))
+    tube = shapely.union_all(parts)
+    return tube, time.perf_counter() - started
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--model", type=Path, default=ROOT / "models" / "frt_unicycle.onnx")
+    parser.add_argument("--rollouts", type=int, default=16384)
+    parser.add_argument("--bins", default="16x1,16x6", help="heading x speed bin counts")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", type=Path, default=ROOT / "results" / "partition_bound.json")
+    args = parser.parse_args()
+    bin_sets = [tuple(int(n) for n in b.split("x")) for b in args.bins.split(",")]
+    engine = FRTEngine(ValueModel.load(args.model, threads=2))
+    settings = [s for s in SETTINGS if s.name in NAMES]
+    rows = []
+    for setting in tqdm(settings, desc="settings", unit="setting"):
+        bounds = setting.bounds()
+        rng = np.random.default_rng(args.seed)
+        roll = simulate(setting.v_start, bounds, args.rollouts, rng)
+        frt = engine.exact(Pose(0.0, 0.0, 0.0), setting.v_start, bounds)
+        speed_max = float(engine.outer(setting.v_start, bounds).sweep_speed_max.max())
+        for t, reference in zip(TIMES, swept_cells(roll, TIMES), strict=True):
+            served = frt.geometry("tube", t)
+            row = {
+                "setting": setting.name,
+                "t": t,
+                "served": compare_cells(reference, model_cells(served, reference)),
+            }
+            for bins in bin_sets:
+                cut, seconds = partition_tube(setting.v_start, bounds, t, bins, speed_max)
+                both = served.intersection(cut)
+                row[f"cut_{bins[0]}x{bins[1]}"] = {
+                    **compare_cells(reference, model_cells(both, reference)),
+                    "partition_s": round(seconds, 3),
+                }
+            rows.append(row)
+    header = f"{'setting':26s} {'t':>3s}  {'served IoU / beyond p95':>24s}"
+    for bins in bin_sets:
+        header += f"  {f'cut {bins[0]}x{bins[1]}: recall / IoU / beyond / s':>38s}"
+    print(header)
+    for row in rows:
+        line = (
+            f"{row['setting']:26s} {row['t']:3.0f}  "
+            f"{row['served']['iou']:11.3f} / {row['served']['beyond_p95_m']:6.2f} m"
+        )
+        for bins in bin_sets:
+            c = row[f"cut_{bins[0]}x{bins[1]}"]
+            line += (
+                f"  {c['recall_cells']:11.4f} / {c['iou']:5.3f} / "
+                f"{c['beyond_p95_m']:6.2f} m / {c['partition_s']:5.2f}"
+            )
+        print(line)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(
+        json.dumps({"rollouts": args.rollouts, "seed": args.seed, "rows": rows}, indent=2)
+    )
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()

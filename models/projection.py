@@ -166,14 +166,77 @@ def teacher_dataset(engine, n_settings: int, per_setting: int, rng: np.random.Ge
     return rows.astype(np.float32), targets
 
 
+def unreachable_xy(
+    n_settings: int,
+    per_setting: int,
+    slice_dt: float,
+    rng: np.random.Generator,
+    bins: tuple[int, int] = (16, 6),
+) -> tuple[np.ndarray, np.ndarray]:
+    """Positions proven unreachable at their time although inside the convex outer polygon: rows
+    [n, 14] (t, px, py and the parameters set) and the size of their set (``box_scale`` of the
+    outer box at that time).
+
+    Per random setting and slice time, points drawn uniformly in the outer box are kept when the
+    outer polygon contains them and no heading x speed bin polygon of
+    ``models.corridor_bound.partition_supports`` does: no trajectory from the initial set is there
+    at that time (sound: tests/test_corridor_bound.py). Mostly the notch behind a car that can turn
+    round, which the distilled V calls reachable (docs/model.md)."""
+    from models.corridor_bound import DIRECTIONS, partition_supports
+    from models.outer_bound import outer_bound
+
+    late = _slice_times(slice_dt)
+    late = late[late >= 1.0]
+    rows, scales = [], []
+    for params in tqdm(sample_parameters(n_settings, rng), desc="unreachable", mininterval=5):
+        v_start, bounds = float(params[COL["v_start"]]), params[6:]
+        t = float(rng.choice(late))
+        ob = outer_bound(v_start, bounds)
+        k = int(np.argmin(np.abs(ob.times - t)))
+        x_lo, x_hi, y_lo, y_hi = ob.box_at[k]
+        xy = np.stack(
+            [rng.uniform(x_lo, x_hi, per_setting), rng.uniform(y_lo, y_hi, per_setting)], axis=1
+        )
+        in_polygon = np.all(
+            xy @ np.stack([np.cos(ob.directions), np.sin(ob.directions)]) <= ob.support_at[k],
+            axis=1,
+        )
+        support, empty = partition_supports(v_start, bounds, [t], *bins)
+        reach = xy @ np.stack([np.cos(DIRECTIONS), np.sin(DIRECTIONS)])
+        covered = (np.all(reach[:, None, :] <= support[0][None] + 1e-9, axis=2) & ~empty[0]).any(1)
+        keep = in_polygon & ~covered
+        if keep.any():
+            r = np.repeat(params[None], int(keep.sum()), axis=0)
+            r[:, COL["t"]] = t
+            r[:, COL["px"]], r[:, COL["py"]] = xy[keep, 0], xy[keep, 1]
+            rows.append(r)
+            scales.append(np.full(int(keep.sum()), float(box_scale(ob.box_at[k]))))
+    if not rows:
+        return np.zeros((0, N_INPUTS), dtype=np.float32), np.zeros(0, dtype=np.float32)
+    return np.concatenate(rows).astype(np.float32), np.concatenate(scales).astype(np.float32)
+
+
 def train_projection(
-    x: np.ndarray, y: np.ndarray, steps: int, seed: int, over_weight: float = 4.0
+    x: np.ndarray,
+    y: np.ndarray,
+    steps: int,
+    seed: int,
+    over_weight: float = 4.0,
+    lift: tuple[np.ndarray, np.ndarray] | None = None,
+    lift_weight: float = 1.0,
 ) -> ProjectionNetwork:
-    """Regression with a heavier penalty where W over-estimates the teacher (the unsafe side)."""
+    """Regression with a heavier penalty where W over-estimates the teacher (the unsafe side).
+
+    ``lift`` = (rows, floors): positions proven unreachable and a value W should not fall below
+    there (a hinge, squared); the calibration on reachable points then decides the level, so the
+    hinge can only move the set where it does not cost containment."""
     torch.manual_seed(seed)
     net = ProjectionNetwork()
     optimiser = torch.optim.Adam(net.parameters(), lr=2e-3)
     xt, yt = torch.as_tensor(x), torch.as_tensor(y)
+    lift_x = lift_floor = None
+    if lift is not None and len(lift[0]):
+        lift_x, lift_floor = torch.as_tensor(lift[0]), torch.as_tensor(lift[1])
     rng = np.random.default_rng(seed)
     bar = tqdm(range(steps), desc="distil", mininterval=5)
     for step in bar:
@@ -183,6 +246,10 @@ def train_projection(
         target = yt[idx].clamp(max=20.0)  # far-field values matter only in sign
         err = net(xt[idx])[:, 0] - target
         loss = torch.where(err > 0, over_weight * err * err, err * err).mean()
+        if lift_x is not None and lift_floor is not None:
+            pick = torch.as_tensor(rng.integers(0, len(lift_x), 1024))
+            short = torch.relu(lift_floor[pick] - net(lift_x[pick])[:, 0])
+            loss = loss + lift_weight * (short * short).mean()
         optimiser.zero_grad(set_to_none=True)
         loss.backward()
         optimiser.step()
@@ -274,6 +341,19 @@ def main() -> None:
     parser.add_argument("--calibration-settings", type=int, default=12000)
     parser.add_argument("--seed", type=int, default=11)
     parser.add_argument(
+        "--lift-settings",
+        type=int,
+        default=0,
+        help="settings whose positions proven unreachable (unreachable_xy) W is lifted at",
+    )
+    parser.add_argument(
+        "--lift-floor",
+        type=float,
+        default=0.25,
+        help="W's floor there per unit of set size (box_scale), above the calibrated level",
+    )
+    parser.add_argument("--lift-weight", type=float, default=1.0)
+    parser.add_argument(
         "--calibrate-only",
         action="store_true",
         help="keep the shipped projection graph, re-calibrate its levels on fresh rollouts",
@@ -287,7 +367,11 @@ def main() -> None:
     model = ValueModel.load(args.model, threads=2)
     engine = FRTEngine(model, projection=False, slice_dt=PROJECTION_SLICE_DT)
     x, y = teacher_dataset(engine, args.settings, args.per_setting, rng)
-    net = train_projection(x, y, args.steps, args.seed)
+    lift = None
+    if args.lift_settings:
+        rows, scale = unreachable_xy(args.lift_settings, 256, CALIBRATION_SLICE_DT, rng)
+        lift = (rows, (args.lift_floor * scale).astype(np.float32))
+    net = train_projection(x, y, args.steps, args.seed, lift=lift, lift_weight=args.lift_weight)
     # Calibrate the level on fresh reachable points of the true dynamics (scenario optimisation).
     # One level for all settings: a table per (time, size) cell was tried and under-approximated a
     # growing-bounds setting (its guarantee is over the sampling distribution, not per setting).
@@ -306,6 +390,8 @@ def main() -> None:
         "teacher": "FRTEngine.stencil_min of the runtime graph",
         "architecture": {"width": net.width, "depth": net.depth, "activation": "SiLU"},
         "distillation_samples": len(x),
+        "lifted_unreachable_positions": 0 if lift is None else len(lift[0]),
+        "lift_floor_per_scale": args.lift_floor if lift is not None else None,
         "steps": args.steps,
         "time_s": round(time.monotonic() - started, 1),
     }

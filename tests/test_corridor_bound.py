@@ -124,3 +124,27 @@ def test_partition_polygons_cut_into_the_notch_the_convex_polygon_covers() -> No
     support, empty = partition_supports(setting.v_start, setting.bounds(), [HORIZON_S], 16, 6)
     reach = behind @ np.stack([np.cos(DIRECTIONS), np.sin(DIRECTIONS)])
     assert not (np.all(reach[None, :] <= support[0], axis=1) & ~empty[0]).any()
+
+
+def test_positions_the_projection_is_lifted_at_are_unreachable_for_every_heading_and_speed() -> (
+    None
+):
+    """models.projection.unreachable_xy keeps positions no bin polygon holds; the per-state bound
+    (final heading and speed pinned, a tighter corridor) must then exclude them at every heading
+    and speed on a grid, and they lie inside the convex outer polygon (where the cut matters)."""
+    from models.projection import unreachable_xy
+
+    rows, scale = unreachable_xy(60, 128, 0.05, np.random.default_rng(2))
+    assert len(rows) > 20 and np.all(scale > 0)
+    pick = rows[:: max(len(rows) // 12, 1)][:12]
+    headings = np.linspace(-np.pi, np.pi, 24, endpoint=False)
+    for row in pick:
+        ob = outer_bound(float(row[COL["v_start"]]), row[6:])
+        k = int(np.argmin(np.abs(ob.times - row[COL["t"]])))
+        point = shapely.Point(float(row[COL["px"]]), float(row[COL["py"]]))
+        assert shapely.Polygon(ob.polygons_at([k])[0]).buffer(1e-6).contains(point)
+        speeds = np.linspace(*ob.speed[k], 8)
+        h, v = (a.ravel() for a in np.meshgrid(headings, speeds))
+        x = np.repeat(row[None].astype(float), h.size, axis=0)
+        x[:, COL["heading"]], x[:, COL["speed"]] = h, v
+        assert value_lower_bound(x).min() >= 0.0

@@ -13,12 +13,11 @@ from models.dynamics import initial_set_value
 from models.eval_settings import SETTINGS
 from models.outer_bound import outer_bound
 from models.rollout import (
-    rk4_rollout,
     sample_control_schedules,
-    sample_initial_states,
     sample_reference_schedules,
 )
 from models.sampling import sample_parameters
+from tests.fixtures.trajectories import simulate
 
 
 def _inputs(t: float, state: tuple[np.ndarray, ...], v_start: float, bounds: np.ndarray):
@@ -44,13 +43,8 @@ def test_the_bound_never_exceeds_the_initial_value_of_a_simulated_state(seed, sc
     settings += [(float(p[COL["v_start"]]), p[6:]) for p in sample_parameters(4, rng)]
     n = 300
     for v_start, bounds in settings:
-        params = np.zeros((n, N_INPUTS))
-        params[:, 6:] = bounds
-        params[:, COL["v_start"]] = v_start
-        start = sample_initial_states(params[:, COL["v_start"]], rng, spread=3.0, on_boundary=0.3)
+        start, trace = simulate(v_start, bounds, n, rng, schedules, spread=3.0, on_boundary=0.3)
         initial_value = initial_set_value(*start, v_start)
-        a1, a2, sw = schedules(n, HORIZON_S, rng)
-        _, trace = rk4_rollout(start, params, np.full(n, HORIZON_S), a1, a2, sw, 150, record=True)
         for tau, state in trace[14::45]:
             bound = value_lower_bound(_inputs(float(tau[0]), state, v_start, bounds))
             assert np.all(bound < np.maximum(initial_value, 0.0) + 1e-9), (v_start, bounds)
@@ -96,12 +90,7 @@ def test_partition_polygons_hold_every_simulated_position(seed: int) -> None:
     normals = np.stack([np.cos(DIRECTIONS), np.sin(DIRECTIONS)])
     n = 2000
     for v_start, bounds in settings:
-        params = np.zeros((n, N_INPUTS))
-        params[:, 6:] = bounds
-        params[:, COL["v_start"]] = v_start
-        start = sample_initial_states(params[:, COL["v_start"]], rng, on_boundary=0.5)
-        a1, a2, sw = schedules(n, HORIZON_S, rng)
-        _, trace = rk4_rollout(start, params, np.full(n, HORIZON_S), a1, a2, sw, 150, record=True)
+        _, trace = simulate(v_start, bounds, n, rng, schedules)
         picked = trace[29::40]
         times = np.array([float(tau[0]) for tau, _ in picked])
         support, empty = partition_supports(v_start, bounds, times, 12, 4)

@@ -6,16 +6,15 @@ import numpy as np
 import pytest
 import shapely
 
-from models.contract import COL, HORIZON_S, N_INPUTS
+from models.contract import COL
 from models.eval_settings import SETTINGS
 from models.outer_bound import cos_range, outer_bound
 from models.rollout import (
-    rk4_rollout,
     sample_control_schedules,
-    sample_initial_states,
     sample_reference_schedules,
 )
 from models.sampling import sample_parameters
+from tests.fixtures.trajectories import simulate
 
 
 def test_cos_range_is_exact_on_dense_samples() -> None:
@@ -38,12 +37,7 @@ def test_rollouts_stay_inside_the_outer_bound(seed: int, schedules) -> None:
     n = 2000
     for v_start, bounds in settings:
         ob = outer_bound(v_start, bounds)
-        params = np.zeros((n, N_INPUTS))
-        params[:, 6:] = bounds
-        params[:, COL["v_start"]] = v_start
-        start = sample_initial_states(params[:, COL["v_start"]], rng, on_boundary=0.5)
-        a1, a2, sw = schedules(n, HORIZON_S, rng)
-        _, trace = rk4_rollout(start, params, np.full(n, HORIZON_S), a1, a2, sw, 150, record=True)
+        _, trace = simulate(v_start, bounds, n, rng, schedules)
         for tau, (px, py, _heading, v) in trace[::5]:
             t = float(tau[0])
             x_lo, x_hi, y_lo, y_hi = ob.box_containing_slice(t)

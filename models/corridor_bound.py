@@ -32,7 +32,7 @@ import numpy as np
 
 from models.contract import COL, HORIZON_S, INITIAL_SET, InitialSet
 from models.dynamics import heading_interval, interpolate_bounds, speed_change_interval
-from models.outer_bound import cos_range
+from models.outer_bound import cos_max_towards
 
 #: Support directions of the per-state position polygon.
 DIRECTIONS = np.arange(16) * (2 * math.pi / 16)
@@ -146,9 +146,7 @@ class _Corridors:
         sp_hi = np.maximum(sp_hi, sp_lo)  # an empty sub-interval is caught at the nodes above
         th_hi = np.maximum(th_hi, th_lo)
 
-        _, c_hi = cos_range(
-            th_lo[:, :, None] - DIRECTIONS[None, None, :], th_hi[:, :, None] - DIRECTIONS
-        )
+        c_hi = cos_max_towards(th_lo, th_hi, DIRECTIONS)
         rate = np.where(c_hi >= 0, sp_hi[:, :, None] * c_hi, sp_lo[:, :, None] * c_hi)
         support = m.radius_m + c[:, None] + rate.sum(axis=1) * self.h[:, None]  # [N, M]
         return support, empty

@@ -13,6 +13,7 @@ conservative fallback (service/engine.py).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -38,6 +39,18 @@ def cos_range(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.where(has_min, -1.0, c_lo), np.where(has_max, 1.0, c_hi)
 
 
+def cos_max_towards(lo: np.ndarray, hi: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """max over theta in [lo, hi] of cos(theta - phi_m), for intervals [...] and directions [M]:
+    [..., M]. 1 where the interval holds phi_m + 2 pi k, else the larger end; the ends' cosines
+    by the angle-addition formula (the transcendental functions on the intervals only, not on every
+    interval-direction pair as ``cos_range(lo - phi, hi - phi)`` computes them)."""
+    lo, hi = np.asarray(lo, dtype=float)[..., None], np.asarray(hi, dtype=float)[..., None]
+    c, s = np.cos(directions), np.sin(directions)
+    ends = np.maximum(np.cos(lo) * c + np.sin(lo) * s, np.cos(hi) * c + np.sin(hi) * s)
+    holds = np.mod(directions - lo, 2 * math.pi) <= hi - lo
+    return np.where(holds, 1.0, ends)
+
+
 def sin_range(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Exact range of sin over each interval [lo, hi] (sin x = cos(x - pi/2))."""
     return cos_range(lo - math.pi / 2, hi - math.pi / 2)
@@ -53,25 +66,46 @@ def _interval_product(
 SUPPORT_DIRECTIONS = 16
 
 
+@functools.lru_cache(maxsize=8)
+def _line_pairs(directions: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """For every pair of non-parallel boundary lines p . n_a = h_a, p . n_b = h_b: the indices
+    (a, b) and the inverse of [[n_a], [n_b]] (the same for every support vector: computed once)."""
+    angles = np.asarray(directions)
+    normals = np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    i, j = np.triu_indices(len(angles), k=1)
+    pairs = np.stack([normals[i], normals[j]], axis=1)  # [P, 2, 2]
+    ok = np.abs(np.linalg.det(pairs)) > 1e-9
+    return i[ok], j[ok], np.linalg.inv(pairs[ok])
+
+
+def candidate_vertices(
+    directions: np.ndarray, supports: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Intersections of every pair of boundary lines of {p : p . (cos phi_m, sin phi_m) <=
+    supports[k, m] for all m}, per row k of ``supports`` [K, M]: x, y [K, P] and [K, P] True where
+    the point satisfies every constraint (a vertex of polygon k). Keeping all feasible pairs means
+    redundant constraints cannot cut a corner off."""
+    i, j, inverse = _line_pairs(tuple(float(d) for d in directions))
+    rhs_a, rhs_b = supports[:, i], supports[:, j]  # [K, P]
+    px = inverse[None, :, 0, 0] * rhs_a + inverse[None, :, 0, 1] * rhs_b
+    py = inverse[None, :, 1, 0] * rhs_a + inverse[None, :, 1, 1] * rhs_b
+    slack = 1e-7 * (1 + np.abs(supports))[:, None, :]
+    feasible = np.all(
+        px[:, :, None] * np.cos(directions) + py[:, :, None] * np.sin(directions)
+        <= supports[:, None, :] + slack,
+        axis=2,
+    )
+    return px, py, feasible
+
+
 def half_plane_polygons(directions: np.ndarray, supports: np.ndarray) -> list[np.ndarray]:
     """Vertices (counter-clockwise) of {p : p . (cos phi_m, sin phi_m) <= support[k, m] for all m},
-    for every row k of ``supports`` [K, M] at once.
-
-    Every pair of boundary lines is intersected and the points that satisfy all constraints are
-    kept, so redundant constraints cannot cut a corner off; each polygon is convex.
-    """
-    normals = np.stack([np.cos(directions), np.sin(directions)], axis=1)
-    i, j = np.triu_indices(len(directions), k=1)
-    a = np.stack([normals[i], normals[j]], axis=1)  # [P, 2, 2]
-    ok = np.abs(np.linalg.det(a)) > 1e-9
-    inverse = np.linalg.inv(a[ok])  # [P', 2, 2]
-    rhs = np.stack([supports[:, i[ok]], supports[:, j[ok]]], axis=2)  # [K, P', 2]
-    points = np.einsum("pab,kpb->kpa", inverse, rhs)  # [K, P', 2]
-    slack = 1e-7 * (1 + np.abs(supports))[:, None, :]
-    feasible = np.all(points @ normals.T <= supports[:, None, :] + slack, axis=2)
+    for every row k of ``supports`` [K, M] at once (``candidate_vertices``, sorted by angle about
+    their centre); each polygon is convex."""
+    px, py, feasible = candidate_vertices(directions, np.asarray(supports, dtype=float))
     polygons = []
-    for k in range(len(supports)):
-        pts = points[k][feasible[k]]
+    for k in range(len(px)):
+        pts = np.stack([px[k][feasible[k]], py[k][feasible[k]]], axis=1)
         centre = pts.mean(axis=0)
         polygons.append(pts[np.argsort(np.arctan2(pts[:, 1] - centre[1], pts[:, 0] - centre[0]))])
     return polygons
@@ -198,7 +232,7 @@ def outer_bound(
     directions = np.arange(support_directions) * (2 * math.pi / max(support_directions, 1))
     support = np.full((len(fine), len(directions)), r)
     if support_directions:
-        _, c_hi = cos_range(th_lo[:, None] - directions, th_hi[:, None] - directions)
+        c_hi = cos_max_towards(th_lo, th_hi, directions)
         rate = np.where(c_hi >= 0, sp_hi[:, None] * c_hi, sp_lo[:, None] * c_hi)
         support[1:] += np.cumsum(rate * h, axis=0)
 

@@ -16,6 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
+from models.outer_bound import candidate_vertices
+
 #: Stands for "+inf" in a contoured field (contourpy needs finite values).
 FAR = 1.0e6
 
@@ -151,23 +153,9 @@ def dilate_discs(values: np.ndarray, radii_nodes: np.ndarray) -> np.ndarray:
 
 def convex_polygons(directions: np.ndarray, supports: np.ndarray) -> np.ndarray:
     """Shapely polygons {p : p . (cos phi_m, sin phi_m) <= supports[k, m] for all m}, one per row
-    of ``supports`` [K, M]: the vertices of ``models.outer_bound.half_plane_polygons`` (every pair
-    of boundary lines intersected, the feasible points kept), sorted and built for all rows at
-    once."""
-    normals = np.stack([np.cos(directions), np.sin(directions)], axis=1)
-    i, j = np.triu_indices(len(directions), k=1)
-    pairs = np.stack([normals[i], normals[j]], axis=1)  # [P, 2, 2]
-    ok = np.abs(np.linalg.det(pairs)) > 1e-9
-    inverse = np.linalg.inv(pairs[ok])  # [P', 2, 2]
-    rhs_a, rhs_b = supports[:, i[ok]], supports[:, j[ok]]  # [K, P']
-    px = inverse[None, :, 0, 0] * rhs_a + inverse[None, :, 0, 1] * rhs_b
-    py = inverse[None, :, 1, 0] * rhs_a + inverse[None, :, 1, 1] * rhs_b
-    slack = 1e-7 * (1 + np.abs(supports))[:, None, :]
-    feasible = np.all(
-        px[:, :, None] * normals[None, None, :, 0] + py[:, :, None] * normals[None, None, :, 1]
-        <= supports[:, None, :] + slack,
-        axis=2,
-    )  # [K, P']
+    of ``supports`` [K, M]: the vertices of ``models.outer_bound.candidate_vertices``, sorted and
+    built for all rows at once."""
+    px, py, feasible = candidate_vertices(directions, np.asarray(supports, dtype=float))
     counts = feasible.sum(axis=1)
     cx = np.where(feasible, px, 0.0).sum(axis=1) / np.maximum(counts, 1)
     cy = np.where(feasible, py, 0.0).sum(axis=1) / np.maximum(counts, 1)

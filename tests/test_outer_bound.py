@@ -8,7 +8,7 @@ import shapely
 
 from models.contract import COL
 from models.eval_settings import SETTINGS
-from models.outer_bound import cos_range, outer_bound
+from models.outer_bound import cos_max_towards, cos_range, outer_bound
 from models.rollout import (
     sample_control_schedules,
     sample_reference_schedules,
@@ -25,6 +25,18 @@ def test_cos_range_is_exact_on_dense_samples() -> None:
     dense = np.cos(np.linspace(lo, hi, 20001))
     np.testing.assert_allclose(c_lo, dense.min(axis=0), atol=1e-6)
     np.testing.assert_allclose(c_hi, dense.max(axis=0), atol=1e-6)
+
+
+def test_cos_max_towards_directions_is_exact_on_dense_samples() -> None:
+    rng = np.random.default_rng(1)
+    lo = rng.uniform(-10, 10, 200)
+    hi = lo + np.concatenate([rng.uniform(0, 7, 190), np.zeros(5), np.full(5, 2 * np.pi)])
+    directions = np.arange(16) * (2 * np.pi / 16)
+    dense = np.cos(np.linspace(lo, hi, 20001)[:, :, None] - directions).max(axis=0)
+    got = cos_max_towards(lo, hi, directions)
+    assert got.shape == (200, 16)
+    np.testing.assert_allclose(got, dense, atol=1e-6)
+    assert np.all(got >= dense - 1e-12)  # never below a sampled value: the bound stays outward
 
 
 @pytest.mark.parametrize(

@@ -32,7 +32,7 @@ import contourpy
 import numpy as np
 import shapely
 from shapely import affinity
-from shapely.geometry import box, mapping
+from shapely.geometry import box
 from shapely.geometry.base import BaseGeometry
 
 from models.contract import BOUND_COLUMNS, COL, N_INPUTS
@@ -499,16 +499,29 @@ class FieldTubeSet(FRTSet):
 
 
 def _geojson(geometry: BaseGeometry) -> dict:
-    if geometry.is_empty:
-        return {"type": "MultiPolygon", "coordinates": []}
-    mapped = mapping(geometry)
+    """A GeoJSON Polygon or MultiPolygon of the geometry's polygons, coordinates rounded to the
+    millimetre (each ring rounded and listed by numpy, not number by number in Python). Parts of
+    lower dimension (a line or point where an intersection degenerates) have no area and are left
+    out."""
+    polygons: list[shapely.Polygon] = []
+    pending = [geometry]
+    while pending:
+        part = pending.pop()
+        if isinstance(part, shapely.Polygon):
+            if not part.is_empty:
+                polygons.append(part)
+        elif isinstance(part, shapely.MultiPolygon | shapely.GeometryCollection):
+            pending.extend(reversed(shapely.get_parts(part).tolist()))
 
-    def listify(value):
-        if isinstance(value, tuple | list):
-            return [listify(v) for v in value]
-        return round(float(value), 3)
+    def rings(polygon: shapely.Polygon) -> list:
+        return [
+            np.round(shapely.get_coordinates(ring), 3).tolist()
+            for ring in (polygon.exterior, *polygon.interiors)
+        ]
 
-    return {"type": mapped["type"], "coordinates": listify(mapped["coordinates"])}
+    if len(polygons) == 1 and isinstance(geometry, shapely.Polygon):
+        return {"type": "Polygon", "coordinates": rings(polygons[0])}
+    return {"type": "MultiPolygon", "coordinates": [rings(p) for p in polygons]}
 
 
 def _box(bounds: np.ndarray) -> BaseGeometry:

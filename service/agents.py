@@ -8,6 +8,7 @@ check -> start the exact FRT of the new version in the background and answer at 
 
 from __future__ import annotations
 
+import asyncio
 from typing import Any
 
 import numpy as np
@@ -114,6 +115,10 @@ async def observe(
     millisecond, run inline, a thread hop would cost more) uses the state read first; the store's
     atomic update then only checks that nobody wrote in between (else it recomputes from the fresh
     state, under the agent's lock)."""
+    # Let requests already waiting on the event loop (collision checks, with deadlines) go before
+    # this observation's few milliseconds of numerical work: a burst of observations otherwise
+    # queues a check behind all of them.
+    await asyncio.sleep(0)
     settings = services.settings
     engine = services.require_engine()
     check_prediction_steps("prediction", request.prediction.mean, settings)

@@ -203,7 +203,7 @@ def _boundary_values(values: np.ndarray, reduce: Any) -> np.ndarray:
 
 @dataclass(frozen=True)
 class _Vertices:
-    """What the vertex enumeration of :func:`_max_line_below` needs from the abscissae w alone
+    """What the vertex enumeration of :func:`_max_lines_below` needs from the abscissae w alone
     (the same for the four lines of one fit, and for every prediction with the same steps):
     the constraint matrix G and, per pair of constraints that intersect, their rows and det."""
 
@@ -231,50 +231,54 @@ def _vertices(n: int, dt: float, horizon: float) -> _Vertices:
     return _Vertices(*arrays)
 
 
-def _max_line_below(
-    v: _Vertices, w: np.ndarray, c: np.ndarray, floor: float
-) -> tuple[float, float]:
-    """Start/end values (a, b) of the highest-area line below the points (w_j, c_j), with a, b >= floor.
+def _max_lines_below(
+    v: _Vertices, w: np.ndarray, c: np.ndarray, floor: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per row k of ``c`` [K, m]: start/end values (a_k, b_k) of the highest-area line below the
+    points (w_j, c_kj), with a_k, b_k >= floor_k.
 
-    The 2-variable linear programme ``max a + b`` s.t. ``(1 - w_j) a + w_j b <= c_j``,
-    ``a >= floor``, ``b >= floor``, solved exactly by enumerating the vertices (intersections of
-    constraint pairs, ``v`` = :func:`_vertices` of ``w``) and keeping the best feasible one. When
-    the optimum is an edge (several lines touch the same point at mid-horizon), the middle of that
-    edge is taken. Any rounding excess over a c_j is finally subtracted, so the line never rises
-    above a point.
+    The 2-variable linear programme ``max a + b`` s.t. ``(1 - w_j) a + w_j b <= c_kj``,
+    ``a >= floor_k``, ``b >= floor_k``, solved exactly by enumerating the vertices (intersections
+    of constraint pairs, ``v`` = :func:`_vertices` of ``w``) and keeping the best feasible one; all
+    K programmes at once (an observation fits four). When the optimum is an edge (several lines
+    touch the same point at mid-horizon), the middle of that edge is taken. Any rounding excess over
+    a c_kj is finally subtracted, so the line never rises above a point.
     """
-    h = np.concatenate([c, [-floor, -floor]])
-    hi_, hj = h[v.i], h[v.j]
+    h = np.concatenate([c, -np.stack([floor, floor], axis=1)], axis=1)  # [K, m + 2]
+    hi_, hj = h[:, v.i], h[:, v.j]  # [K, P]
     a = (hi_ * v.gj1 - v.gi1 * hj) / v.det
     b = (v.gi0 * hj - hi_ * v.gj0) / v.det
-    tol = 1e-10 * (1.0 + float(np.abs(h).max()))
-    feasible = (v.G @ np.vstack([a, b]) <= h[:, None] + tol).all(axis=0)
-    a, b = a[feasible], b[feasible]  # never empty: a = b = floor is a feasible vertex
-    objective = a + b
-    face = objective >= objective.max() - tol
-    a, b = a[face], b[face]
+    tol = 1e-10 * (1.0 + np.abs(h).max(axis=1, keepdims=True))  # [K, 1]
+    lhs = v.G[None, :, 0, None] * a[:, None, :] + v.G[None, :, 1, None] * b[:, None, :]
+    feasible = (lhs <= h[:, :, None] + tol[:, :, None]).all(axis=1)  # [K, P]
+    # Never empty: a = b = floor is a feasible vertex.
+    objective = np.where(feasible, a + b, -np.inf)
+    face = feasible & (objective >= objective.max(axis=1, keepdims=True) - tol)
     slope = b - a
-    lo, hi = int(slope.argmin()), int(slope.argmax())
-    a_opt, b_opt = 0.5 * (a[lo] + a[hi]), 0.5 * (b[lo] + b[hi])
-    excess = max(0.0, float(((1.0 - w) * a_opt + w * b_opt - c).max()))
+    lo = np.where(face, slope, np.inf).argmin(axis=1)[:, None]
+    hi = np.where(face, slope, -np.inf).argmax(axis=1)[:, None]
+    a_opt = 0.5 * (np.take_along_axis(a, lo, 1) + np.take_along_axis(a, hi, 1))[:, 0]
+    b_opt = 0.5 * (np.take_along_axis(b, lo, 1) + np.take_along_axis(b, hi, 1))[:, 0]
+    line = (1.0 - w)[None, :] * a_opt[:, None] + w[None, :] * b_opt[:, None]
+    excess = np.maximum((line - c).max(axis=1), 0.0)
     return a_opt - excess, b_opt - excess
 
 
 def _envelope(
     lo: np.ndarray, hi: np.ndarray, dt: float, horizon: float, lim: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Start and end values ([min|max, dim]) of the envelope fit (see :func:`fit_bounds`)."""
+    """Start and end values ([min|max, dim]) of the envelope fit (see :func:`fit_bounds`): the
+    highest line below each dimension's lower values and, mirrored, the lowest line above its
+    upper ones, four programmes solved together."""
     n = lo.shape[0]
     w = np.append(np.arange(n, dtype=np.float64) * dt, horizon) / horizon
     v = _vertices(n, dt, horizon)
-    start = np.empty((2, 2))  # [min|max, dim]
-    end = np.empty((2, 2))
-    for d in range(2):
-        c_lo = _boundary_values(lo[:, d], np.minimum)
-        c_hi = _boundary_values(hi[:, d], np.maximum)
-        start[0, d], end[0, d] = _max_line_below(v, w, c_lo, -lim[d])
-        a, b = _max_line_below(v, w, -c_hi, -lim[d])  # the lowest line above hi, mirrored
-        start[1, d], end[1, d] = -a, -b
+    rows = [_boundary_values(lo[:, d], np.minimum) for d in range(2)]
+    rows += [-_boundary_values(hi[:, d], np.maximum) for d in range(2)]
+    floors = -np.concatenate([lim[:2], lim[:2]]).astype(np.float64)
+    a, b = _max_lines_below(v, w, np.stack(rows), floors)
+    start = np.stack([a[:2], -a[2:]])  # [min|max, dim]
+    end = np.stack([b[:2], -b[2:]])
     return start, end
 
 

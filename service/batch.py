@@ -8,7 +8,6 @@ call of the same kernel (``service.engine.box_union_distances``), so the values 
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -18,6 +17,7 @@ from service.engine import (
     BoxTubeSet,
     FRTSet,
     box_union_distances,
+    human_frames,
     signed_distances,
 )
 
@@ -45,25 +45,19 @@ def box_clearances(
 def _same_size(
     sets: list[BoxTubeSet], xy_world: np.ndarray, t_rel: list[np.ndarray | None]
 ) -> list[np.ndarray]:
-    headings = np.array([s.pose.heading for s in sets])
-    c, s_ = np.cos(headings)[:, None], np.sin(headings)[:, None]
-    dx0 = xy_world[None, :, 0] - np.array([s.pose.x for s in sets])[:, None]  # [A, N]
-    dy0 = xy_world[None, :, 1] - np.array([s.pose.y for s in sets])[:, None]
-    x = (c * dx0 + s_ * dy0)[:, :, None]  # the human frame, as to_human_frame computes it
-    y = (-s_ * dx0 + c * dy0)[:, :, None]
+    x, y = human_frames(xy_world, [s.pose for s in sets])  # [A, N]
     b = np.stack([s.boxes for s in sets])[:, None, :, :]  # [A, 1, M, 4]
-    n_points, n_boxes = xy_world.shape[0], b.shape[2]
-    index = np.empty((len(sets), n_points), dtype=int)
-    for a, (frt, t) in enumerate(zip(sets, t_rel, strict=True)):
-        if t is None:
-            index[a] = frt.n_slices - 1
-        else:
-            index[a] = frt.tube_indices(t)
-    counted = None
+    counted = None  # every box counts for every point, unless a check is time-indexed
     if any(t is not None for t in t_rel):
-        until = np.stack([frt.boxes_until for frt in sets])  # [A, J]
-        limit = np.take_along_axis(until, index, axis=1)  # [A, N]
-        counted = np.arange(n_boxes)[None, None, :] < limit[:, :, None]
+        index = np.stack(
+            [
+                np.full(len(xy_world), frt.n_slices - 1) if t is None else frt.tube_indices(t)
+                for frt, t in zip(sets, t_rel, strict=True)
+            ]
+        )  # [A, N]
+        limit = np.take_along_axis(np.stack([frt.boxes_until for frt in sets]), index, axis=1)
+        counted = np.arange(b.shape[2])[None, None, :] < limit[:, :, None]
+    x, y = x[:, :, None], y[:, :, None]
     return list(box_union_distances(x, y, b, counted))
 
 
@@ -78,12 +72,7 @@ def tube_clearances(
     if not sets:
         return []
     n = xy_world.shape[0]
-    cos = np.array([[math.cos(s.pose.heading)] for s in sets])  # [A, 1], as to_human_frame
-    sin = np.array([[math.sin(s.pose.heading)] for s in sets])
-    dx = xy_world[None, :, 0] - np.array([[s.pose.x] for s in sets])  # [A, N]
-    dy = xy_world[None, :, 1] - np.array([[s.pose.y] for s in sets])
-    x = (cos * dx + sin * dy).reshape(-1)
-    y = (-sin * dx + cos * dy).reshape(-1)
+    x, y = (v.reshape(-1) for v in human_frames(xy_world, [s.pose for s in sets]))
     tubes_list: list[BaseGeometry] = []  # each tube once (by identity)
     position: dict[int, int] = {}
     which: list[int] = []  # per point, its tube's place in tubes_list

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 import threading
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import overload
 
@@ -83,12 +84,20 @@ class OutOfRangeError(ValueError):
         self.hi = hi
 
 
+def human_frames(xy_world: np.ndarray, poses: Sequence[Pose]) -> tuple[np.ndarray, np.ndarray]:
+    """World points [N, 2] in the frame of each of A humans (origin at the human, heading 0):
+    x, y [A, N]. One definition for a single set and for a check of many."""
+    c = np.array([[math.cos(p.heading)] for p in poses])
+    s = np.array([[math.sin(p.heading)] for p in poses])
+    dx = xy_world[None, :, 0] - np.array([[p.x] for p in poses])
+    dy = xy_world[None, :, 1] - np.array([[p.y] for p in poses])
+    return c * dx + s * dy, -s * dx + c * dy
+
+
 def to_human_frame(xy_world: np.ndarray, pose: Pose) -> np.ndarray:
     """World points [N, 2] -> the human frame (origin at the human, heading 0)."""
-    c, s = math.cos(pose.heading), math.sin(pose.heading)
-    dx = xy_world[:, 0] - pose.x
-    dy = xy_world[:, 1] - pose.y
-    return np.stack([c * dx + s * dy, -s * dx + c * dy], axis=1)
+    x, y = human_frames(xy_world, [pose])
+    return np.stack([x[0], y[0]], axis=1)
 
 
 def to_world_frame(geometry: BaseGeometry, pose: Pose) -> BaseGeometry:

@@ -172,7 +172,7 @@ async def observe(
     state = await services.store.update(agent_id, apply, timestamp=request.timestamp)
     job = services.job_for(state)
     services.submit(job)
-    services.prepare_conservative(job)
+    services.conservative(job)  # built now, so that checks finding the exact set late look it up
     # The belief just built, unless the stored one is another (from_dict would give the same arrays:
     # a stored belief is normalised already, and normalising it again changes no bit).
     belief = built[-1] if built[-1].to_dict() == state.belief else Belief.from_dict(state.belief)

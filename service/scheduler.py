@@ -62,13 +62,8 @@ class LRUCache:
         self.put(key, value)
         return value, False
 
-    def peek(self, key: FRTKey) -> Any | None:
-        """The cached value for ``key`` or None, without counting as a use."""
-        with self._lock:
-            return self._items.get(key)
-
     def put(self, key: FRTKey, value: Any) -> None:
-        """Cache ``value`` for ``key`` (e.g. computed elsewhere)."""
+        """Cache ``value`` for ``key``."""
         with self._lock:
             self._items[key] = value
             self._items.move_to_end(key)

@@ -212,18 +212,12 @@ class Services:
         """``engine.exact`` for ``job``: on this engine in a thread, on its own in a worker process."""
         return ExactTask(job.pose, job.v_start, job.bounds, self.require_engine())
 
-    def prepare_conservative(self, job: FRTJob) -> None:
-        """Build the conservative set of ``job`` now, on the caller's thread (boxes only: ~1 ms
-        here, less than sending it to a worker process and back costs this process), so that a
-        collision check that finds the exact set late looks it up: a planner's check of 50 agents
-        must not build 50 of them within its deadline."""
-        self.conservative(job)
-
     def conservative(self, job: FRTJob) -> FRTSet:
-        """The engine's fast set that contains the exact one (blocking: call from a thread).
+        """The engine's fast set that contains the exact one (boxes only, ~1 ms here: built on
+        the caller's thread, less than a round trip to a worker process would cost).
 
-        Cached per key too: a planner checking an agent at 10 Hz while its exact set is late
-        (e.g. 50 agents in one multi-agent check) builds each conservative set once.
+        Cached per key: each observation builds its version's set, so a planner's check of 50
+        agents whose exact sets are late looks them up instead of building 50 within its deadline.
         """
         engine = self.require_engine()
 

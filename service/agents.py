@@ -109,12 +109,14 @@ def belief_out(belief: Belief) -> tuple[BeliefOut, BeliefOut]:
 
 
 async def observe(
-    services: Services, agent_id: str, request: ObservationRequest
+    services: Services, agent_id: str, request: ObservationRequest, wait_frt_s: float = 0.0
 ) -> ObservationResponse:
     """The observation flow. The numerical work (validation, Bayes update, bounds fit: well under a
     millisecond, run inline, a thread hop would cost more) uses the state read first; the store's
     atomic update then only checks that nobody wrote in between (else it recomputes from the fresh
-    state, under the agent's lock)."""
+    state, under the agent's lock). With ``wait_frt_s`` > 0 the answer waits that long at most for
+    the new version's exact FRT (``frt_ready`` says whether it came): a planner that needs the
+    fresh set saves the round trip of a waiting ``GET``."""
     # Let requests already waiting on the event loop (collision checks, with deadlines) go before
     # this observation's few milliseconds of numerical work: a burst of observations otherwise
     # queues a check behind all of them.
@@ -173,6 +175,8 @@ async def observe(
     job = services.job_for(state)
     services.submit(job)
     services.conservative(job)  # built now, so that checks finding the exact set late look it up
+    if wait_frt_s > 0:
+        await services.exact_within(job, wait_frt_s)
     # The belief just built, unless the stored one is another (from_dict would give the same arrays:
     # a stored belief is normalised already, and normalising it again changes no bit).
     belief = built[-1] if built[-1].to_dict() == state.belief else Belief.from_dict(state.belief)
@@ -186,6 +190,7 @@ async def observe(
         frt_version=state.frt_version,
         # A previous state existed exactly when the version went past 1.
         action_scored=request.observed_action is not None and state.frt_version > 1,
+        frt_ready=services.scheduler.is_ready(job.key),
     )
 
 

@@ -184,6 +184,9 @@ class ObservationResponse(Response):
     control_bounds: ControlBoundsOut
     frt_version: int
     action_scored: bool = Field(description="whether observed_action updated the belief")
+    frt_ready: bool = Field(
+        False, description="whether the exact FRT of this version is computed (see wait_frt_ms)"
+    )
 
 
 class AgentResponse(Response):

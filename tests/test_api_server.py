@@ -90,6 +90,29 @@ def test_get_agent_can_wait_for_the_exact_set(http: httpx.Client) -> None:
     assert http.get(f"/v1/agents/{agent}", params={"wait_frt_ms": -1}).status_code == 422
 
 
+def test_observation_can_wait_for_its_exact_set(http: httpx.Client) -> None:
+    """``wait_frt_ms`` on the observation: the answer leaves once the new version's exact FRT is
+    computed (one request instead of the observation and a waiting GET)."""
+    agent = new_agent()
+    first = http.post(
+        f"/v1/agents/{agent}/observations", json=observation(1.0), params={"wait_frt_ms": 10_000}
+    ).json()
+    assert first["frt_version"] == 1 and first["frt_ready"] is True
+    second = http.post(
+        f"/v1/agents/{agent}/observations",
+        json=observation(2.0, action=(0.0, 0.0)),
+        params={"wait_frt_ms": 10_000},
+    ).json()
+    assert second["frt_version"] == 2 and second["frt_ready"] is True
+    view = http.get(f"/v1/agents/{agent}").json()  # no wait: the set is there already
+    assert view["frt_version"] == 2 and view["frt_ready"] is True
+    bad = http.post(
+        f"/v1/agents/{agent}/observations", json=observation(3.0), params={"wait_frt_ms": -1}
+    )
+    assert bad.status_code == 422 and "wait_frt_ms" in bad.text
+    assert http.get(f"/v1/agents/{agent}").json()["frt_version"] == 2  # nothing stored
+
+
 def test_stale_timestamp_is_409_and_keeps_state(http: httpx.Client) -> None:
     agent = new_agent()
     assert http.post(f"/v1/agents/{agent}/observations", json=observation(5.0)).status_code == 200

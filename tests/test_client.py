@@ -118,6 +118,18 @@ def test_get_agent_can_wait_for_the_exact_frt(client: FRTClient) -> None:
     assert view.frt_ready and view.frt_version == 1
 
 
+def test_observe_can_wait_for_its_exact_frt(client: FRTClient) -> None:
+    """``observe(wait_frt_ms=...)``: the observation's answer says the new version's exact set is
+    ready, and the agent's view agrees without waiting."""
+    agent = agent_id()
+    result = client.observe(
+        agent, timestamp=1.0, state=(0.0, 0.0, 0.0, 5.0), prediction=prediction(), wait_frt_ms=5000
+    )
+    assert result.frt_ready and result.frt_version == 1
+    view = client.get_agent(agent)
+    assert view.frt_ready and view.frt_version == 1
+
+
 def test_observations_take_numpy_models_and_tuples(client: FRTClient) -> None:
     agent = agent_id()
     first = client.observe(

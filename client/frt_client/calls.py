@@ -65,6 +65,7 @@ def observe(
     prediction: Any,
     observed_action: Any = None,
     config: Any = None,
+    wait_frt_ms: float = 0.0,
 ) -> Call[ObservationResult]:
     body = inputs.without_none(
         {
@@ -83,6 +84,7 @@ def observe(
         json=body,
         op="observe",
         message={"agent_id": agent_id, **body},
+        params={"wait_frt_ms": wait_frt_ms} if wait_frt_ms > 0 else None,
     )
 
 

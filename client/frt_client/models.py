@@ -65,6 +65,8 @@ class ObservationResult(Response):
     control_bounds: ControlBounds
     frt_version: int
     action_scored: bool = False
+    #: Whether the exact FRT of this version was computed when the answer left (``wait_frt_ms``).
+    frt_ready: bool = False
 
 
 class Agent(Response):

@@ -45,6 +45,7 @@ class Operations:
         prediction: Any,
         observed_action: Any = None,
         config: Any = None,
+        wait_frt_ms: float = 0.0,
     ) -> ObservationResult:
         """Report a new observation of one human; never sent twice (see :mod:`frt_client.retry`).
 
@@ -58,6 +59,9 @@ class Operations:
                 observation, scored against the first step of the previous prediction;
                 ``None`` on the first observation.
             config: per-agent settings (:class:`~frt_client.AgentConfig` or mapping), from now on.
+            wait_frt_ms: answer once the new version's exact FRT is computed or this much time
+                has passed (at most 10 000; ``frt_ready`` says which; HTTP only): the fresh set
+                in one request instead of a following ``get_agent(wait_frt_ms=...)``.
         """
         return self.send(
             calls.observe(
@@ -67,6 +71,7 @@ class Operations:
                 prediction=prediction,
                 observed_action=observed_action,
                 config=config,
+                wait_frt_ms=wait_frt_ms,
             )
         )
 
@@ -210,6 +215,7 @@ class AsyncOperations:
         prediction: Any,
         observed_action: Any = None,
         config: Any = None,
+        wait_frt_ms: float = 0.0,
     ) -> ObservationResult:
         """Report a new observation of one human; never sent twice (see :mod:`frt_client.retry`).
 
@@ -223,6 +229,8 @@ class AsyncOperations:
                 observation, scored against the first step of the previous prediction;
                 ``None`` on the first observation.
             config: per-agent settings (:class:`~frt_client.AgentConfig` or mapping), from now on.
+            wait_frt_ms: answer once the new version's exact FRT is computed or this much time
+                has passed (at most 10 000; ``frt_ready`` says which; HTTP only).
         """
         return await self.send(
             calls.observe(
@@ -232,6 +240,7 @@ class AsyncOperations:
                 prediction=prediction,
                 observed_action=observed_action,
                 config=config,
+                wait_frt_ms=wait_frt_ms,
             )
         )
 

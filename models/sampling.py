@@ -13,7 +13,12 @@ import numpy as np
 
 from models.contract import COL, HORIZON_S, N_INPUTS, U1_LIMIT, U2_LIMIT, V_START_MAX
 from models.dynamics import initial_set_value
-from models.rollout import rk4_rollout, sample_control_schedules, sample_initial_states
+from models.rollout import (
+    rk4_rollout,
+    sample_control_schedules,
+    sample_initial_states,
+    sample_reference_schedules,
+)
 
 
 def _interval(n: int, limit: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -81,16 +86,25 @@ def sample_training_batch(
     rng: np.random.Generator,
     rollout_steps: int = 24,
     horizon: float = HORIZON_S,
+    extremal_share: float = 0.0,
 ) -> TrainingBatch:
     """A batch: rollout endpoints (exact reachable states), multi-scale perturbations of them, and
-    uniform points over the region any in-range car can reach."""
+    uniform points over the region any in-range car can reach.
+
+    With ``extremal_share`` > 0 that share of the rollouts follows the Pontryagin-shaped schedules
+    of the evaluation and the calibration (``sample_reference_schedules``: turn hard, then drive
+    straight), so that the upper bound V <= l(start) also holds V down on the front of the set,
+    which switching between the bounds almost never reaches. 0 draws the original mix."""
     params = np.repeat(sample_parameters(n_params, rng), points_per_param, axis=0)
     n = params.shape[0]
     t = rng.uniform(0, t_max, n)
     v_start = params[:, COL["v_start"]]
 
     start = sample_initial_states(v_start, rng, spread=2.0)
-    a1, a2, switches = sample_control_schedules(n, horizon, rng)
+    if extremal_share > 0:
+        a1, a2, switches = sample_reference_schedules(n, horizon, rng, extremal_share)
+    else:
+        a1, a2, switches = sample_control_schedules(n, horizon, rng)
     switches = switches * (t / horizon)[:, None]
     end, _ = rk4_rollout(start, params, t, a1, a2, switches, rollout_steps)
     rollout_points = set_state(params, t, end)

@@ -46,6 +46,9 @@ class TrainConfig:
     #: corridor hinge (weight ``weights["corridor"]``), and how many of them per step.
     corridor_data: str | None = None
     corridor_per_step: int = 2048
+    #: Share of training rollouts under the evaluation's Pontryagin-shaped schedules (0: the
+    #: original switching/straight/random mix; see ``sample_training_batch``).
+    extremal_share: float = 0.0
 
     @classmethod
     def load(cls, path: Path) -> TrainConfig:
@@ -132,7 +135,13 @@ def train(config: TrainConfig, out: Path, max_minutes: float | None = None) -> P
         t_max = horizon_at(step, config)
         for group in optimiser.param_groups:
             group["lr"] = learning_rate(step, config)
-        batch = sample_training_batch(config.params_per_batch, config.points_per_param, t_max, rng)
+        batch = sample_training_batch(
+            config.params_per_batch,
+            config.points_per_param,
+            t_max,
+            rng,
+            extremal_share=config.extremal_share,
+        )
         bounded = None
         if bounded_data is not None:
             pick = torch.as_tensor(rng.integers(0, len(bounded_data[1]), config.corridor_per_step))

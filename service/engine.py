@@ -56,8 +56,12 @@ from service.field_stack import (
 from service.model_runtime import ValueModel
 from service.refine import coarse_to_fine
 
-#: Consecutive 0.025 s sweep boxes merged into one box of the conservative set.
-BOX_SWEEPS_MERGED = 2
+#: Consecutive 0.025 s sweeps per window (0.1 s). The conservative set has one box per window;
+#: the exact tube is cut to one outer polygon per window, the support functions' maximum over its
+#: sweeps, whose four axis supports are that box's sides: the box holds the polygon, so the
+#: conservative set holds the exact one. (Polygons over windows longer than the boxes bulge past
+#: them between sweeps that step sideways: by up to 0.1 m with 0.1 s polygons and 0.05 s boxes.)
+SWEEPS_PER_WINDOW = 4
 
 #: Slice spacing when the distilled projection network is present (its level is calibrated on the
 #: 0.05 s grid, which contains this one).
@@ -332,10 +336,6 @@ class SliceFields:
 #: sqrt(2) sin(11.25 deg) = 0.28 node steps inside.
 CORNER_CHORD = 0.3
 
-#: Time window of one outer polygon in the cut of a tube (sagitta of a 15 m/s arc over it on a 20 m
-#: radius: about 9 cm).
-OUTER_WINDOW_S = 0.1
-
 #: An instant whose outer polygon holds fewer lattice nodes than this is not resolved by the grid
 #: (a small early set on a lattice sized for the late, large ones): its outer polygon stands for K.
 MIN_NODES_INSIDE = 16
@@ -369,7 +369,8 @@ class FieldTubeSet(FRTSet):
 
     Tube j is {min over i <= j of sweep_i <= 0} (the growth of instant_j spans one node step more,
     so a thin part of the set between nodes is not lost), grown by the contour's corner chords and
-    cut to a union of outer polygons of [0, s_j] that lies inside the conservative box tube.
+    cut to a union of outer polygons of [0, s_j], one per window of the conservative box tube,
+    whose box holds it.
     """
 
     def __init__(
@@ -397,7 +398,7 @@ class FieldTubeSet(FRTSet):
         self.coarse = np.zeros(len(instant), dtype=bool) if coarse is None else coarse
         self._tubes: dict[int, BaseGeometry] = {}
         self._slices: dict[int, BaseGeometry] = {}
-        #: Outer polygons of the OUTER_WINDOW_S windows, and their unions by window count.
+        #: Outer polygons of the windows (SWEEPS_PER_WINDOW), and their unions by window count.
         self._outer_windows: np.ndarray | None = None
         self._outer_unions: dict[int, BaseGeometry] = {}
         self._hulls: dict[int, BaseGeometry] = {}
@@ -460,14 +461,15 @@ class FieldTubeSet(FRTSet):
 
     def outer_tube(self, j: int) -> BaseGeometry:
         """A union of outer polygons that contains every position reached during [0, s_j]: one
-        polygon per ``OUTER_WINDOW_S`` (the support functions' maximum over its sweeps).
+        polygon per window of ``SWEEPS_PER_WINDOW`` sweeps (the support functions' maximum over
+        them), inside the conservative set's box of that window.
 
         The windows' polygons are built once per set and the unions grow from the largest one
         already built (checks ask for many tubes of one set, mostly in increasing order)."""
         n = self.bound_rows[j]
         if n == 0:
             return self.outer.tube(0)
-        chunk = max(round(OUTER_WINDOW_S / float(self.bound.times[1] - self.bound.times[0])), 1)
+        chunk = SWEEPS_PER_WINDOW
         support = self.bound.sweep_support
         if n % chunk:  # a partial last window: not one of the shared windows
             windows = np.stack(
@@ -642,9 +644,9 @@ class FRTEngine:
 
     def _box_tube(self, pose: Pose, ob: OuterBound) -> BoxTubeSet:
         """Tube j: the sweep boxes up to s_j + slice_dt / 2 (the half slice rounded up), merged
-        ``BOX_SWEEPS_MERGED`` at a time (a box around each group: a superset, and fewer boxes for
-        a check of many agents to measure)."""
-        k, g = self.outer_steps_per_slice, BOX_SWEEPS_MERGED
+        ``SWEEPS_PER_WINDOW`` at a time (a box around each window: a superset that holds the exact
+        set's outer polygons, and fewer boxes for a check of many agents to measure)."""
+        k, g = self.outer_steps_per_slice, SWEEPS_PER_WINDOW
         n = len(ob.sweep)
         groups = math.ceil(n / g)
         padded = np.concatenate([ob.sweep, np.repeat(ob.sweep[-1:], groups * g - n, axis=0)])

@@ -10,7 +10,7 @@ import pytest
 import shapely
 
 from models.eval_settings import SETTINGS
-from service.engine import FRTEngine, FRTSet, Pose
+from service.engine import SWEEPS_PER_WINDOW, FRTEngine, FRTSet, Pose
 from service.field_stack import convex_polygons
 from service.model_runtime import ValueModel
 
@@ -53,7 +53,12 @@ def test_the_outer_tube_is_the_union_of_its_windows() -> None:
     support = frt.bound.sweep_support
     for j in (30, 3, 12, 11, 29):
         n = frt.bound_rows[j]
-        windows = np.stack([support[a : min(a + 4, n)].max(axis=0) for a in range(0, n, 4)])
+        windows = np.stack(
+            [
+                support[a : min(a + SWEEPS_PER_WINDOW, n)].max(axis=0)
+                for a in range(0, n, SWEEPS_PER_WINDOW)
+            ]
+        )
         direct = shapely.union_all(convex_polygons(frt.bound.directions, windows))
         assert frt.outer_tube(j).symmetric_difference(direct).area < 1e-9
 

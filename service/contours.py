@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pydantic import ValidationError
 from starlette.concurrency import run_in_threadpool
 
 from service.agents import effective_config
@@ -23,7 +24,12 @@ def parse_query(slices: str | None, include: str | None, tube: bool) -> ContourQ
     parts = [p.strip() for p in (include if include is not None else "K,C").split(",") if p.strip()]
     if not parts or any(p not in ("K", "C") for p in parts):
         raise FieldError("include", "a comma-separated subset of K,C", location="query")
-    return ContourQuery(slices=times, include=list(dict.fromkeys(parts)), tube=tube)  # type: ignore[arg-type]
+    try:
+        return ContourQuery(slices=times, include=list(dict.fromkeys(parts)), tube=tube)  # type: ignore[arg-type]
+    except ValidationError as exc:  # e.g. nan, inf or too many slices: the query's fault
+        error = exc.errors()[0]
+        field = ".".join(str(part) for part in error["loc"])
+        raise FieldError(field, error["msg"], location="query") from None
 
 
 def build(frt: FRTSet, query: ContourQuery, collision_radius: float, t_origin: float) -> Contours:

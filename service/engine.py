@@ -159,8 +159,9 @@ def signed_distances(geometries: np.ndarray, rows: np.ndarray, xy: np.ndarray) -
 class FRTSet:
     """K for every slice and the tubes up to each slice, in the human frame.
 
-    Slice j is the set reachable at exactly ``j * slice_dt``; tube j contains every position reached
-    during [0, j * slice_dt]. Subclasses say how a tube and a slice are built.
+    Slice j is the set reachable at exactly ``j * slice_dt``; interval j (j >= 1) contains every
+    position reached during [(j - 1) * slice_dt, j * slice_dt]; tube j contains every position
+    reached during [0, j * slice_dt]. Subclasses say how each is built.
     """
 
     def __init__(
@@ -178,6 +179,9 @@ class FRTSet:
         raise NotImplementedError
 
     def slice(self, j: int) -> BaseGeometry:
+        raise NotImplementedError
+
+    def interval(self, j: int) -> BaseGeometry:
         raise NotImplementedError
 
     def tube_index(self, t_rel: float) -> int:
@@ -213,12 +217,17 @@ class FRTSet:
         return j
 
     def geometry(self, kind: str, t: float | None = None) -> BaseGeometry:
-        """K in the human frame: the whole tube, the tube up to t, or the slice nearest t."""
+        """K in the human frame: the whole tube, the tube up to t, or the set at time t: the slice
+        if t is one of the slices' instants, else the interval between the two instants around t,
+        which contains every position reachable at t (a slice of a nearby instant need not)."""
         if kind == "tube":
             return self.tube(self.n_slices - 1 if t is None else self.tube_index(t))
         if kind == "slice":
-            j = round(min(max(t or 0.0, 0.0), self.horizon_s) / self.slice_dt)
-            return self.slice(min(j, self.n_slices - 1))
+            steps = min(max(t or 0.0, 0.0), self.horizon_s) / self.slice_dt
+            j = min(round(steps), self.n_slices - 1)
+            if abs(steps - j) <= 1e-6:
+                return self.slice(j)
+            return self.interval(min(math.ceil(steps), self.n_slices - 1))
         raise ValueError(f"unknown kind {kind!r}")
 
     def geojson(self, kind: str, t: float | None, collision_radius: float) -> dict:
@@ -245,11 +254,14 @@ class BoxTubeSet(FRTSet):
         boxes: np.ndarray,
         boxes_until: np.ndarray,
         slice_boxes: np.ndarray,
+        interval_boxes: np.ndarray,
     ) -> None:
         super().__init__(pose, slice_dt, horizon_s, len(boxes_until), conservative=True)
         self.boxes = boxes
         self.boxes_until = boxes_until
         self.slice_boxes = slice_boxes
+        #: [n_slices, 2]: the boxes [first, last) whose union holds interval j.
+        self.interval_boxes = interval_boxes
         self._unions: dict[int, BaseGeometry] = {}
 
     def clearance(self, xy_world: np.ndarray, t_rel: np.ndarray | None = None) -> np.ndarray:
@@ -272,6 +284,10 @@ class BoxTubeSet(FRTSet):
 
     def slice(self, j: int) -> BaseGeometry:
         return _box(self.boxes[self.slice_boxes[j]])
+
+    def interval(self, j: int) -> BaseGeometry:
+        b = self.boxes[self.interval_boxes[j, 0] : self.interval_boxes[j, 1]]
+        return shapely.union_all(shapely.box(b[:, 0], b[:, 2], b[:, 1], b[:, 3]))
 
 
 @dataclass(frozen=True)
@@ -398,6 +414,7 @@ class FieldTubeSet(FRTSet):
         self.coarse = np.zeros(len(instant), dtype=bool) if coarse is None else coarse
         self._tubes: dict[int, BaseGeometry] = {}
         self._slices: dict[int, BaseGeometry] = {}
+        self._intervals: dict[int, BaseGeometry] = {}
         #: Outer polygons of the windows (SWEEPS_PER_WINDOW), and their unions by window count.
         self._outer_windows: np.ndarray | None = None
         self._outer_unions: dict[int, BaseGeometry] = {}
@@ -501,11 +518,33 @@ class FieldTubeSet(FRTSet):
         if cached is not None:
             return cached
         k_set = self._grow(self.instant[j].contour(self.lattice))
-        if j > 0 and (self.coarse[j] or not k_set.is_empty):
+        if self.coarse[j] or not k_set.is_empty:
             polygon = shapely.Polygon(self.bound.polygons_at([self.bound_rows[j]])[0])
             k_set = polygon if self.coarse[j] else k_set.intersection(polygon)
         with self._lock:
             self._slices[j] = k_set
+        return k_set
+
+    def interval(self, j: int) -> BaseGeometry:
+        """K over [s_(j-1), s_j]: {sweep_j <= 0} grown by the contour's corner chords and cut to
+        the outer polygon of that window, or that polygon if either instant is unresolved."""
+        j = max(j, 1)
+        with self._lock:
+            cached = self._intervals.get(j)
+        if cached is not None:
+            return cached
+        n = self.bound_rows[j]
+        window = self.bound.sweep_support[self.bound_rows[j - 1] : n].max(axis=0)
+        polygon = shapely.Polygon(half_plane_polygons(self.bound.directions, window[None])[0])
+        if self.coarse[j] or self.coarse[j - 1]:
+            k_set = polygon
+        else:
+            k_set = self.sweep[j].contour(self.lattice)
+            if not k_set.is_empty:
+                k_set = k_set.buffer(CORNER_CHORD * self.lattice.step, quad_segs=4)
+            k_set = k_set.intersection(polygon)
+        with self._lock:
+            self._intervals[j] = k_set
         return k_set
 
 
@@ -668,6 +707,12 @@ class FRTEngine:
             boxes=boxes,
             boxes_until=np.array(upto),
             slice_boxes=np.array([min(j * k, n - 1) // g for j in range(self.n_slices)]),
+            interval_boxes=np.array(
+                [
+                    [min(max(j - 1, 0) * k, n - 1) // g, math.ceil(max(j * k, 1) / g)]
+                    for j in range(self.n_slices)
+                ]
+            ),
         )
 
     # ----------------------------------------------------------------- exact set

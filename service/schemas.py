@@ -255,7 +255,11 @@ class MultiCollisionCheckResponse(Response):
 
 class ContourQuery(Request):
     slices: list[float] = Field(
-        default_factory=list, max_length=SLICES_CAP, description="seconds after the observation"
+        default_factory=list,
+        max_length=SLICES_CAP,
+        description="seconds after the observation; the set at each time: on the engine's 0.1 s "
+        "grid the set at that instant, between two instants the set over the interval between "
+        "them, which holds the set at t",
     )
     include: list[Part] = Field(default_factory=lambda: ["K", "C"], min_length=1, max_length=2)
     tube: bool = True

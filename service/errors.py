@@ -114,7 +114,14 @@ def validation_payload(errors: Sequence[Any], prefix: Loc = ()) -> dict[str, Any
         }
         for err in errors
     ]
-    field = dotted(detail[0]["loc"]) if detail else None
+    field = None
+    if detail:
+        first = detail[0]
+        # Malformed JSON is located by a character offset, a missing or non-object body by "body"
+        # alone: both name the body as a whole.
+        field = "body" if first["type"] == "json_invalid" else dotted(first["loc"]) or "body"
+        if first["type"] == "json_invalid" and isinstance(first["loc"][-1], int):
+            first["msg"] = f"{first['msg']} at character {first['loc'][-1]}"
     return {"detail": detail, "field": field}
 
 

@@ -46,7 +46,10 @@ GeoJSON = dict[str, Any]
 
 
 class Request(BaseModel):
-    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    """A request body: unknown fields, non-finite numbers and numbers sent as strings or booleans
+    are errors that name the field (strict: "1" and true are not silently read as 1.0)."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
 
 
 class Response(BaseModel):
@@ -303,7 +306,9 @@ class FRTRequest(Request):
     state: HumanState
     control_bounds: ControlBoundsIn | None = None
     prediction: Prediction | None = None
-    beta: float | None = Field(None, gt=0.0, le=1e6)
+    beta: float | None = Field(
+        None, gt=0.0, le=1.0, description="confidence in the prediction: covariance / beta"
+    )
     gamma: float | None = Field(None, gt=0.0, lt=1.0)
     bounds_fit: BoundsFit | None = None
     collision_radius: Radius | None = None

@@ -55,10 +55,39 @@ def test_missing_and_malformed_fields_are_named(client: TestClient) -> None:
         headers={"content-type": "application/json"},
     )
     assert field_of(r) == "timestamp"
-    r = client.post(
-        "/v1/agents/a/observations", content=b"{", headers={"content-type": "application/json"}
+    # The body as a whole: malformed JSON (located by a character offset), null, a list, nothing.
+    for content in (b"{", b'{"timestamp": 1.0,', b"null", b"[]", b""):
+        r = client.post(
+            "/v1/agents/a/observations",
+            content=content,
+            headers={"content-type": "application/json"},
+        )
+        assert field_of(r) == "body", content
+    assert (
+        "at character"
+        in client.post(
+            "/v1/agents/a/observations", content=b"{", headers={"content-type": "application/json"}
+        ).json()["detail"][0]["msg"]
     )
-    assert r.status_code == 422
+
+
+def test_numbers_sent_as_strings_or_booleans_are_refused(client: TestClient) -> None:
+    """Strict numbers: "1" and true are not read as 1.0 (a typo'd client must hear of it)."""
+    for path, value in ((("state", "x"), "1"), (("state", "speed"), True), (("timestamp",), "5")):
+        body = observation(1.0)
+        target = body
+        for key in path[:-1]:
+            target = target[key]
+        target[path[-1]] = value
+        r = client.post("/v1/agents/strict/observations", json=body)
+        assert field_of(r) == ".".join(path)
+    body = observation(1.0)
+    body["prediction"]["mean"][0][0] = True
+    r = client.post("/v1/agents/strict/observations", json=body)
+    assert field_of(r) == "prediction.mean.0.0"
+    body = observation(1.0)
+    body["state"]["x"] = 3  # an integer is a number
+    assert client.post("/v1/agents/strict/observations", json=body).status_code == 200
 
 
 def test_prediction_errors_name_the_step(client: TestClient) -> None:
@@ -105,6 +134,9 @@ def test_stateless_needs_exactly_one_source_of_bounds(client: TestClient) -> Non
     assert field_of(client.post("/v1/frt", json={"state": state, "prediction": pred})) == "beta"
     both = {"state": state, "prediction": pred, "beta": 1.0, "control_bounds": NARROW_BOUNDS}
     assert field_of(client.post("/v1/frt", json=both)) == "prediction"
+    # beta is a confidence in (0, 1]: beta_high = 1 (API.md); above it the covariance would shrink.
+    beyond = {"state": state, "prediction": pred, "beta": 5.0}
+    assert field_of(client.post("/v1/frt", json=beyond)) == "beta"
     inverted = {**NARROW_BOUNDS, "u1_min_start": 1.0}
     r = client.post("/v1/frt", json={"state": state, "control_bounds": inverted})
     assert field_of(r) == "control_bounds"

@@ -35,6 +35,7 @@ import shapely
 from shapely import affinity
 from shapely.geometry import box
 from shapely.geometry.base import BaseGeometry
+from shapely.geometry.polygon import orient
 
 from models.contract import BOUND_COLUMNS, COL, N_INPUTS
 from models.dynamics import wrap_angle
@@ -564,6 +565,7 @@ def _geojson(geometry: BaseGeometry) -> dict:
             pending.extend(reversed(shapely.get_parts(part).tolist()))
 
     def rings(polygon: shapely.Polygon) -> list:
+        polygon = orient(polygon, sign=1.0)  # RFC 7946: exterior counter-clockwise, holes clockwise
         return [
             np.round(shapely.get_coordinates(ring), 3).tolist()
             for ring in (polygon.exterior, *polygon.interiors)

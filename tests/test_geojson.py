@@ -32,3 +32,24 @@ def test_parts_without_area_are_left_out_and_empty_sets_stay_valid() -> None:
     assert out["type"] == "MultiPolygon" and len(out["coordinates"]) == 1
     assert _round_trip(out).equals(shapely.MultiPolygon([square]))
     assert _geojson(shapely.Polygon()) == {"type": "MultiPolygon", "coordinates": []}
+
+
+def _signed_area(ring: list) -> float:
+    """Shoelace: positive for a counter-clockwise ring."""
+    xy = list(zip(*ring, strict=True))
+    x, y = xy[0], xy[1]
+    return 0.5 * sum(x[i] * y[i + 1] - x[i + 1] * y[i] for i in range(len(x) - 1))
+
+
+def test_rings_follow_the_right_hand_rule() -> None:
+    """RFC 7946 3.1.6: exterior rings counter-clockwise, holes clockwise, whatever the input."""
+    ring = shapely.Point(0.0, 0.0).buffer(4.0, quad_segs=8)
+    holed = ring.difference(shapely.Point(0.5, 0.0).buffer(1.0))
+    clockwise = shapely.Polygon(holed.exterior.coords[::-1], [holed.interiors[0].coords[::-1]])
+    multi = shapely.MultiPolygon([clockwise, shapely.box(20.0, 20.0, 21.0, 21.0, ccw=False)])
+    for geometry in (holed, clockwise, multi):
+        out = _geojson(geometry)
+        polygons = [out["coordinates"]] if out["type"] == "Polygon" else out["coordinates"]
+        for rings in polygons:
+            assert _signed_area(rings[0]) > 0
+            assert all(_signed_area(hole) < 0 for hole in rings[1:])

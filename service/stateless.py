@@ -21,6 +21,9 @@ def request_bounds(services: Services, request: FRTRequest) -> np.ndarray:
     if request.control_bounds is not None and request.prediction is not None:
         raise FieldError("prediction", "give either control_bounds or prediction, not both")
     if request.control_bounds is not None:
+        for name in ("beta", "gamma", "bounds_fit"):  # they shape bounds from a prediction only
+            if getattr(request, name) is not None:
+                raise FieldError(name, "applies to a prediction; control_bounds are used as given")
         return np.array(request.control_bounds.as_list(), dtype=np.float64)
     if request.prediction is None:
         raise FieldError("control_bounds", "give control_bounds, or a prediction and beta")

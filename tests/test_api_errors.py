@@ -137,6 +137,9 @@ def test_stateless_needs_exactly_one_source_of_bounds(client: TestClient) -> Non
     # beta is a confidence in (0, 1]: beta_high = 1 (API.md); above it the covariance would shrink.
     beyond = {"state": state, "prediction": pred, "beta": 5.0}
     assert field_of(client.post("/v1/frt", json=beyond)) == "beta"
+    for name, value in (("beta", 0.5), ("gamma", 0.1), ("bounds_fit", "endpoints")):
+        ignored = {"state": state, "control_bounds": NARROW_BOUNDS, name: value}
+        assert field_of(client.post("/v1/frt", json=ignored)) == name
     inverted = {**NARROW_BOUNDS, "u1_min_start": 1.0}
     r = client.post("/v1/frt", json={"state": state, "control_bounds": inverted})
     assert field_of(r) == "control_bounds"

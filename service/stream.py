@@ -90,19 +90,28 @@ async def _frt(services: Services, msg: dict[str, Any], arrival: float) -> BaseM
     return await contours.agent_contours(services, agent_id, query, radius, location="")
 
 
+def _no_other_fields(msg: dict[str, Any]) -> None:
+    """422 naming the first field an op without a body does not know (HTTP bodies forbid them)."""
+    for name in msg:
+        raise APIError(422, "unknown field for this op", field=str(name))
+
+
 async def _get_agent(services: Services, msg: dict[str, Any], arrival: float) -> BaseModel:
     agent_id = _pop_agent_id(msg, required=True)
     assert agent_id is not None
+    _no_other_fields(msg)
     return await agents.get_agent(services, agent_id)
 
 
 async def _delete_agent(services: Services, msg: dict[str, Any], arrival: float) -> BaseModel:
     agent_id = _pop_agent_id(msg, required=True)
     assert agent_id is not None
+    _no_other_fields(msg)
     return await agents.delete_agent(services, agent_id)
 
 
 async def _ping(services: Services, msg: dict[str, Any], arrival: float) -> dict[str, Any]:
+    _no_other_fields(msg)
     return {"pong": True}
 
 

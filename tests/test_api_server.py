@@ -428,6 +428,14 @@ def test_websocket_stream(live_server: LiveServer) -> None:
         assert bad["ok"] is False and bad["error"]["status"] == 422
         assert bad["error"]["field"] == "timestamp"
         assert call({"id": 7, "op": "ping"}) == {"id": 7, "ok": True, "result": {"pong": True}}
+        # Ops without a body refuse fields they do not know, as HTTP bodies do.
+        for op in ("get_agent", "delete_agent", "ping"):
+            extra = call({"id": 8, "op": op, "agent_id": agent, "wait_frt_ms": 5})
+            assert extra["error"]["status"] == 422 and extra["error"]["field"] in (
+                "agent_id",
+                "wait_frt_ms",
+            )
+        assert call({"id": 9, "op": "get_agent", "agent_id": agent})["ok"] is True
 
 
 def test_auth_token_guards_v1_only(start_server) -> None:

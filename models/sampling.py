@@ -61,6 +61,39 @@ def sample_parameters(n: int, rng: np.random.Generator) -> np.ndarray:
     return x
 
 
+def _corner_interval(n: int, limit: float, rng: np.random.Generator) -> tuple[np.ndarray, ...]:
+    """Intervals at the edges of [-limit, limit]: full width, hard at one end, or wide."""
+    mode = rng.uniform(0, 1, n)
+    edge = rng.uniform(0.5, 1.0, n) * limit
+    lo = np.select(
+        [mode < 0.4, mode < 0.6, mode < 0.8], [-limit * np.ones(n), edge, -limit * np.ones(n)]
+    )
+    hi = np.select(
+        [mode < 0.4, mode < 0.6, mode < 0.8], [limit * np.ones(n), limit + 0 * edge, -edge]
+    )
+    wide = mode >= 0.8
+    lo[wide] = rng.uniform(-limit, 0.0, int(wide.sum()))
+    hi[wide] = rng.uniform(0.0, limit, int(wide.sum()))
+    return lo, hi
+
+
+def sample_corner_parameters(n: int, rng: np.random.Generator) -> np.ndarray:
+    """[n, 14] settings near the corners of the ranges, where V's calibration tail sits: fast
+    starts (v_start in [0.6, 1] V_START_MAX) with bounds at full width, hard at one end or wide;
+    constant over the horizon for 60 %, else with an end interval drawn on its own."""
+    x = np.zeros((n, N_INPUTS))
+    x[:, COL["v_start"]] = rng.uniform(0.6 * V_START_MAX, V_START_MAX, n)
+    for dim, limit in (("u1", U1_LIMIT), ("u2", U2_LIMIT)):
+        lo_s, hi_s = _corner_interval(n, limit, rng)
+        lo_e, hi_e = _corner_interval(n, limit, rng)
+        constant = rng.uniform(0, 1, n) < 0.6
+        x[:, COL[f"{dim}_min_start"]] = lo_s
+        x[:, COL[f"{dim}_max_start"]] = hi_s
+        x[:, COL[f"{dim}_min_end"]] = np.where(constant, lo_s, lo_e)
+        x[:, COL[f"{dim}_max_end"]] = np.where(constant, hi_s, hi_e)
+    return x
+
+
 def set_state(x: np.ndarray, t: np.ndarray, state: tuple[np.ndarray, ...]) -> np.ndarray:
     """Copy of ``x`` with the time and state columns replaced."""
     out = x.copy()
@@ -87,6 +120,7 @@ def sample_training_batch(
     rollout_steps: int = 24,
     horizon: float = HORIZON_S,
     extremal_share: float = 0.0,
+    corner_share: float = 0.0,
 ) -> TrainingBatch:
     """A batch: rollout endpoints (exact reachable states), multi-scale perturbations of them, and
     uniform points over the region any in-range car can reach.
@@ -94,8 +128,13 @@ def sample_training_batch(
     With ``extremal_share`` > 0 that share of the rollouts follows the Pontryagin-shaped schedules
     of the evaluation and the calibration (``sample_reference_schedules``: turn hard, then drive
     straight), so that the upper bound V <= l(start) also holds V down on the front of the set,
-    which switching between the bounds almost never reaches. 0 draws the original mix."""
-    params = np.repeat(sample_parameters(n_params, rng), points_per_param, axis=0)
+    which switching between the bounds almost never reaches. 0 draws the original mix.
+    ``corner_share`` of the parameter settings come from ``sample_corner_parameters``."""
+    settings = sample_parameters(n_params, rng)
+    if corner_share > 0:
+        k = round(n_params * corner_share)
+        settings[:k] = sample_corner_parameters(k, rng)
+    params = np.repeat(settings, points_per_param, axis=0)
     n = params.shape[0]
     t = rng.uniform(0, t_max, n)
     v_start = params[:, COL["v_start"]]

@@ -49,6 +49,9 @@ class TrainConfig:
     #: Share of training rollouts under the evaluation's Pontryagin-shaped schedules (0: the
     #: original switching/straight/random mix; see ``sample_training_batch``).
     extremal_share: float = 0.0
+    #: Share of training parameter settings near the corners of the ranges (0: none; see
+    #: ``sample_corner_parameters``).
+    corner_share: float = 0.0
 
     @classmethod
     def load(cls, path: Path) -> TrainConfig:
@@ -141,6 +144,7 @@ def train(config: TrainConfig, out: Path, max_minutes: float | None = None) -> P
             t_max,
             rng,
             extremal_share=config.extremal_share,
+            corner_share=config.corner_share,
         )
         bounded = None
         if bounded_data is not None:

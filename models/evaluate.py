@@ -27,6 +27,7 @@ import copy
 import json
 import math
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -235,6 +236,24 @@ def evaluate_setting(
     return rows, artefacts
 
 
+def calibration_draws(
+    n_settings: int, per_setting: int, slice_times: np.ndarray, rng: np.random.Generator
+) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The calibration's samples, setting by setting: (parameter row, times [K], reachable states
+    [K, 4]) from rollouts of the true dynamics (the evaluation's mix of schedules and edge starts)
+    ending at random slice times. One definition, so that a script can redraw the very samples
+    behind a card's delta."""
+    params = sample_parameters(n_settings, rng)
+    for row in tqdm(params, desc="calibrate", unit="setting", mininterval=5):
+        p = np.repeat(row[None, :], per_setting, axis=0)
+        t = rng.choice(slice_times, size=per_setting)
+        start = sample_initial_states(p[:, COL["v_start"]], rng, on_boundary=EDGE_SHARE)
+        a1, a2, sw = sample_reference_schedules(per_setting, HORIZON_S, rng)
+        sw = sw * (t / HORIZON_S)[:, None]
+        end, _ = rk4_rollout(start, p, t, a1, a2, sw, 60)
+        yield row, t, np.stack(end, axis=1)
+
+
 def calibrate(
     model: ValueModel,
     engine: FRTEngine,
@@ -244,18 +263,10 @@ def calibrate(
     epsilon: float = 1e-4,
 ) -> dict[str, Any]:
     """Scenario calibration of delta (network) and of the projection level used by the engine."""
-    params = sample_parameters(n_settings, rng)
     values, stencil = [], []
     slice_times = np.arange(1, engine.n_slices) * engine.slice_dt
-    for row in tqdm(params, desc="calibrate", unit="setting", mininterval=5):
+    for row, t, states in calibration_draws(n_settings, per_setting, slice_times, rng):
         v_start, bounds = float(row[COL["v_start"]]), row[6:].astype(np.float32)
-        p = np.repeat(row[None, :], per_setting, axis=0)
-        t = rng.choice(slice_times, size=per_setting)
-        start = sample_initial_states(p[:, COL["v_start"]], rng, on_boundary=EDGE_SHARE)
-        a1, a2, sw = sample_reference_schedules(per_setting, HORIZON_S, rng)
-        sw = sw * (t / HORIZON_S)[:, None]
-        end, _ = rk4_rollout(start, p, t, a1, a2, sw, 60)
-        states = np.stack(end, axis=1)
         values.append(model.evaluate(model_inputs(t, states, v_start, bounds)))
         ob = engine.outer(v_start, bounds)
         for s in np.unique(t):

@@ -94,6 +94,25 @@ def sample_corner_parameters(n: int, rng: np.random.Generator) -> np.ndarray:
     return x
 
 
+def sample_restart_parameters(n: int, rng: np.random.Generator) -> np.ndarray:
+    """[n, 14] settings whose acceleration bounds go from braking to accelerating over the horizon
+    (the car stops, waits at v = 0 while the bound is negative, then drives off: the stop rule's
+    regime, where V's calibration maximum sits), from slow starts mostly; steering as usual."""
+    x = sample_parameters(n, rng)
+    slow = rng.uniform(0, 1, n) < 0.6
+    x[:, COL["v_start"]] = np.where(
+        slow, rng.uniform(0.0, 3.0, n), rng.uniform(0.0, V_START_MAX, n)
+    )
+    width = U2_LIMIT * 10 ** rng.uniform(-2.3, -0.5, n)
+    start_mid = -rng.uniform(0.5, 1.0, n) * (U2_LIMIT - width)
+    end_mid = rng.uniform(0.2, 1.0, n) * (U2_LIMIT - width)
+    x[:, COL["u2_min_start"]] = start_mid - width / 2
+    x[:, COL["u2_max_start"]] = start_mid + width / 2
+    x[:, COL["u2_min_end"]] = end_mid - width / 2
+    x[:, COL["u2_max_end"]] = end_mid + width / 2
+    return x
+
+
 def set_state(x: np.ndarray, t: np.ndarray, state: tuple[np.ndarray, ...]) -> np.ndarray:
     """Copy of ``x`` with the time and state columns replaced."""
     out = x.copy()
@@ -121,6 +140,7 @@ def sample_training_batch(
     horizon: float = HORIZON_S,
     extremal_share: float = 0.0,
     corner_share: float = 0.0,
+    restart_share: float = 0.0,
 ) -> TrainingBatch:
     """A batch: rollout endpoints (exact reachable states), multi-scale perturbations of them, and
     uniform points over the region any in-range car can reach.
@@ -129,11 +149,15 @@ def sample_training_batch(
     of the evaluation and the calibration (``sample_reference_schedules``: turn hard, then drive
     straight), so that the upper bound V <= l(start) also holds V down on the front of the set,
     which switching between the bounds almost never reaches. 0 draws the original mix.
-    ``corner_share`` of the parameter settings come from ``sample_corner_parameters``."""
+    ``corner_share`` of the parameter settings come from ``sample_corner_parameters``, the next
+    ``restart_share`` from ``sample_restart_parameters``."""
     settings = sample_parameters(n_params, rng)
-    if corner_share > 0:
-        k = round(n_params * corner_share)
+    k = round(n_params * corner_share) if corner_share > 0 else 0
+    if k:
         settings[:k] = sample_corner_parameters(k, rng)
+    r = round(n_params * restart_share) if restart_share > 0 else 0
+    if r:
+        settings[k : k + r] = sample_restart_parameters(r, rng)
     params = np.repeat(settings, points_per_param, axis=0)
     n = params.shape[0]
     t = rng.uniform(0, t_max, n)

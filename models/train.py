@@ -52,6 +52,9 @@ class TrainConfig:
     #: Share of training parameter settings near the corners of the ranges (0: none; see
     #: ``sample_corner_parameters``).
     corner_share: float = 0.0
+    #: Share of training parameter settings whose acceleration bound turns from braking to
+    #: accelerating (0: none; see ``sample_restart_parameters``).
+    restart_share: float = 0.0
 
     @classmethod
     def load(cls, path: Path) -> TrainConfig:
@@ -145,6 +148,7 @@ def train(config: TrainConfig, out: Path, max_minutes: float | None = None) -> P
             rng,
             extremal_share=config.extremal_share,
             corner_share=config.corner_share,
+            restart_share=config.restart_share,
         )
         bounded = None
         if bounded_data is not None:

@@ -6,7 +6,12 @@ from __future__ import annotations
 import numpy as np
 
 from models.contract import BOUND_COLUMNS, COL, U1_LIMIT, U2_LIMIT, V_START_MAX
-from models.sampling import sample_corner_parameters, sample_parameters, sample_training_batch
+from models.sampling import (
+    sample_corner_parameters,
+    sample_parameters,
+    sample_restart_parameters,
+    sample_training_batch,
+)
 
 
 def _assert_admissible(x: np.ndarray) -> None:
@@ -31,6 +36,12 @@ def test_samplers_draw_admissible_settings() -> None:
         at_edge = np.isclose(lo, -limit) | np.isclose(hi, limit) | ((lo <= 0) & (hi >= 0))
         assert at_edge.all()
         assert np.mean(np.isclose(lo, -limit) & np.isclose(hi, limit)) > 0.3  # full width
+    restarts = sample_restart_parameters(5000, rng)
+    _assert_admissible(restarts)
+    # Braking at the start, accelerating by the end (mostly strictly: the interval's middle).
+    assert np.all(restarts[:, COL["u2_max_start"]] < 0)
+    middle_end = 0.5 * (restarts[:, COL["u2_min_end"]] + restarts[:, COL["u2_max_end"]])
+    assert np.all(middle_end > 0)
 
 
 def test_corner_share_replaces_that_share_of_a_batch() -> None:

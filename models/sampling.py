@@ -65,13 +65,12 @@ def _corner_interval(n: int, limit: float, rng: np.random.Generator) -> tuple[np
     """Intervals at the edges of [-limit, limit]: full width, hard at one end, or wide."""
     mode = rng.uniform(0, 1, n)
     edge = rng.uniform(0.5, 1.0, n) * limit
-    lo = np.select(
-        [mode < 0.4, mode < 0.6, mode < 0.8], [-limit * np.ones(n), edge, -limit * np.ones(n)]
-    )
-    hi = np.select(
-        [mode < 0.4, mode < 0.6, mode < 0.8], [limit * np.ones(n), limit + 0 * edge, -edge]
-    )
-    wide = mode >= 0.8
+    lo, hi = np.full(n, -limit), np.full(n, limit)  # full width: 40 %
+    hard_high = (mode >= 0.4) & (mode < 0.6)  # [edge, limit]: 20 %
+    lo[hard_high] = edge[hard_high]
+    hard_low = (mode >= 0.6) & (mode < 0.8)  # [-limit, -edge]: 20 %
+    hi[hard_low] = -edge[hard_low]
+    wide = mode >= 0.8  # [< 0, > 0]: 20 %
     lo[wide] = rng.uniform(-limit, 0.0, int(wide.sum()))
     hi[wide] = rng.uniform(0.0, limit, int(wide.sum()))
     return lo, hi

@@ -7,7 +7,7 @@ from starlette.concurrency import run_in_threadpool
 
 from service.agents import effective_config
 from service.engine import FRTSet
-from service.errors import AgentNotFoundError, FieldError
+from service.errors import AgentNotFoundError, FieldError, dotted
 from service.limits import check_slices
 from service.schemas import ContourPair, ContourQuery, Contours, ContourSlice, ContoursResponse
 from service.services import Services
@@ -28,8 +28,7 @@ def parse_query(slices: str | None, include: str | None, tube: bool) -> ContourQ
         return ContourQuery(slices=times, include=list(dict.fromkeys(parts)), tube=tube)  # type: ignore[arg-type]
     except ValidationError as exc:  # e.g. nan, inf or too many slices: the query's fault
         error = exc.errors()[0]
-        field = ".".join(str(part) for part in error["loc"])
-        raise FieldError(field, error["msg"], location="query") from None
+        raise FieldError(dotted(error["loc"]), error["msg"], location="query") from None
 
 
 def build(frt: FRTSet, query: ContourQuery, collision_radius: float, t_origin: float) -> Contours:

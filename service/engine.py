@@ -279,16 +279,14 @@ class BoxTubeSet(FRTSet):
 
     def tube(self, j: int) -> BaseGeometry:
         if j not in self._unions:
-            b = self.boxes[: self.boxes_until[j]]
-            self._unions[j] = shapely.union_all(shapely.box(b[:, 0], b[:, 2], b[:, 1], b[:, 3]))
+            self._unions[j] = _box_union(self.boxes[: self.boxes_until[j]])
         return self._unions[j]
 
     def slice(self, j: int) -> BaseGeometry:
         return _box(self.boxes[self.slice_boxes[j]])
 
     def interval(self, j: int) -> BaseGeometry:
-        b = self.boxes[self.interval_boxes[j, 0] : self.interval_boxes[j, 1]]
-        return shapely.union_all(shapely.box(b[:, 0], b[:, 2], b[:, 1], b[:, 3]))
+        return _box_union(self.boxes[self.interval_boxes[j, 0] : self.interval_boxes[j, 1]])
 
 
 @dataclass(frozen=True)
@@ -462,11 +460,16 @@ class FieldTubeSet(FRTSet):
         with self._lock:
             hull = self._hulls.get(key)
         if hull is None:
-            support = self.bound.sweep_support[sweeps].max(axis=0)
-            hull = shapely.Polygon(half_plane_polygons(self.bound.directions, support[None])[0])
+            hull = self._sweeps_polygon(sweeps)
             with self._lock:
                 self._hulls[key] = hull
         return hull
+
+    def _sweeps_polygon(self, sweeps: list[int] | slice) -> BaseGeometry:
+        """The polygon of the support functions' maximum over ``sweeps``: it holds every position
+        reached during them."""
+        support = self.bound.sweep_support[sweeps].max(axis=0)
+        return shapely.Polygon(half_plane_polygons(self.bound.directions, support[None])[0])
 
     def _unresolved_sweeps(self, j: int) -> list[int]:
         """Outer-bound sweeps of the intervals up to s_j that touch an unresolved instant."""
@@ -534,9 +537,7 @@ class FieldTubeSet(FRTSet):
             cached = self._intervals.get(j)
         if cached is not None:
             return cached
-        n = self.bound_rows[j]
-        window = self.bound.sweep_support[self.bound_rows[j - 1] : n].max(axis=0)
-        polygon = shapely.Polygon(half_plane_polygons(self.bound.directions, window[None])[0])
+        polygon = self._sweeps_polygon(slice(self.bound_rows[j - 1], self.bound_rows[j]))
         if self.coarse[j] or self.coarse[j - 1]:
             k_set = polygon
         else:
@@ -579,6 +580,11 @@ def _geojson(geometry: BaseGeometry) -> dict:
 def _box(bounds: np.ndarray) -> BaseGeometry:
     x_lo, x_hi, y_lo, y_hi = (float(v) for v in bounds)
     return box(x_lo, y_lo, x_hi, y_hi)
+
+
+def _box_union(boxes: np.ndarray) -> BaseGeometry:
+    """The union of boxes [M, 4] given as (x_lo, x_hi, y_lo, y_hi)."""
+    return shapely.union_all(shapely.box(boxes[:, 0], boxes[:, 2], boxes[:, 1], boxes[:, 3]))
 
 
 def _filled_contour(xs: np.ndarray, ys: np.ndarray, z: np.ndarray, level: float) -> BaseGeometry:

@@ -92,8 +92,8 @@ async def _frt(services: Services, msg: dict[str, Any], arrival: float) -> BaseM
 
 def _no_other_fields(msg: dict[str, Any]) -> None:
     """422 naming the first field an op without a body does not know (HTTP bodies forbid them)."""
-    for name in msg:
-        raise APIError(422, "unknown field for this op", field=str(name))
+    if msg:
+        raise APIError(422, "unknown field for this op", field=str(next(iter(msg))))
 
 
 async def _get_agent(services: Services, msg: dict[str, Any], arrival: float) -> BaseModel:

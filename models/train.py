@@ -203,18 +203,10 @@ def main() -> None:
     parser.add_argument("--max-minutes", type=float, default=None)
     parser.add_argument("--no-export", action="store_true")
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads")
-    parser.add_argument(
-        "--init-checkpoint",
-        type=Path,
-        default=None,
-        help="start from this run's checkpoint instead of the config's init_checkpoint",
-    )
     args = parser.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
     config = TrainConfig.load(args.config)
-    if args.init_checkpoint is not None:
-        config.init_checkpoint = str(args.init_checkpoint)
     out = args.out or Path("runs") / config.name
     train(config, out, args.max_minutes)
     if not args.no_export:

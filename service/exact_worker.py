@@ -9,8 +9,8 @@ between our own processes (trusted IPC, :class:`~service.pipe_pool.PipePool`). I
 and :func:`_rebuild_frt_set` makes a fresh one. Conservative sets (boxes only, well under the
 ~1 ms a task's round trip costs the server) are built by the server itself.
 
-Exact-set workers run at a lower priority (``nice``) than the server, so that on a busy machine the
-event loop answers first and exact sets use what is left. A worker exits when its server does (even
+Exact-set workers run below the server (SCHED_IDLE by default, :func:`lower_priority`), so that on
+a busy machine the event loop answers first and exact sets use what is left. A worker exits when its server does (even
 a killed one). If worker processes cannot be started, :func:`start_pool` says why and the caller
 keeps threads.
 """
@@ -86,18 +86,12 @@ class ExactTask:
         return engine.exact(self.pose, self.v_start, self.bounds)
 
 
-def init_worker(model_path: str, nice: int, parent_pid: int) -> None:
-    """Process initializer: batch scheduling and a lower priority, load the engine, warm it, watch
-    the parent."""
+def init_worker(model_path: str, nice: int, parent_pid: int, policy: str = "idle") -> None:
+    """Process initializer: a scheduling policy below the server's, load the engine, warm it,
+    watch the parent."""
     global _engine
     keep_freed_memory()
-    # Batch scheduling: a worker woken by a task does not preempt the server that sent it (it did,
-    # measured as ~1.7 ms of wall time per pipe write on a busy machine).
-    with contextlib.suppress(AttributeError, OSError):
-        os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
-    if nice:
-        with contextlib.suppress(OSError):  # not permitted here: run at the server's priority
-            os.nice(nice)
+    lower_priority(policy, nice)
     from service.model_runtime import ValueModel
 
     _engine = FRTEngine(ValueModel.load(Path(model_path)))
@@ -108,6 +102,24 @@ def init_worker(model_path: str, nice: int, parent_pid: int) -> None:
         _engine.model.evaluate_projection(np.zeros((4 * _engine.max_nodes, N_INPUTS), np.float32))
     threading.Thread(target=_exit_with_parent, args=(parent_pid,), daemon=True).start()
     freeze_start_up_objects()
+
+
+def lower_priority(policy: str, nice: int) -> None:
+    """Run this process below the server (Linux; elsewhere, or if refused, at its priority).
+
+    * ``"idle"`` (SCHED_IDLE): only when a CPU has nothing else to run. A CPU that runs only such
+      workers counts as idle when the server wakes, so the server is placed there at once instead
+      of queueing beside another busy process (the sustained bench: 3 -> 1-2 checks late at the
+      server, 15 -> 5-9 late end to end, alternating runs).
+    * ``"batch"`` (SCHED_BATCH, plus ``nice``): a worker woken by a task does not preempt the
+      server that sent it; it still counts as busy when the server wakes.
+    """
+    chosen = os.SCHED_IDLE if policy == "idle" else os.SCHED_BATCH
+    with contextlib.suppress(AttributeError, OSError):
+        os.sched_setscheduler(0, chosen, os.sched_param(0))
+    if nice and policy != "idle":
+        with contextlib.suppress(OSError):  # not permitted here: run at the server's priority
+            os.nice(nice)
 
 
 def warm_up_task(engine: FRTEngine) -> ExactTask:
@@ -124,12 +136,14 @@ def _exit_with_parent(parent_pid: int) -> None:
             os._exit(0)
 
 
-def start_pool(model_path: Path, workers: int, nice: int, timeout_s: float = 120.0) -> PipePool:
-    """A pool of ``workers`` processes, each with the engine loaded and warmed; raises if they cannot
-    all be started within ``timeout_s``."""
+def start_pool(
+    model_path: Path, workers: int, nice: int, policy: str = "idle", timeout_s: float = 120.0
+) -> PipePool:
+    """A pool of ``workers`` processes, each with the engine loaded and warmed and run below the
+    server (:func:`lower_priority`); raises if they cannot all be started within ``timeout_s``."""
     return PipePool(
         workers,
         initializer=init_worker,
-        initargs=(str(model_path), nice, os.getpid()),
+        initargs=(str(model_path), nice, os.getpid(), policy),
         timeout_s=timeout_s,
     )

@@ -147,7 +147,9 @@ class Services:
         start = time.perf_counter()
         workers = self.scheduler.workers
         try:
-            pool = start_pool(path, workers, self.settings.frt_worker_nice)
+            pool = start_pool(
+                path, workers, self.settings.frt_worker_nice, self.settings.frt_worker_policy
+            )
         except Exception as exc:
             log.warning(
                 "FRT worker processes not started: computing exact sets on threads",

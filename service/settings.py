@@ -45,9 +45,13 @@ class Settings(BaseSettings):
     #: "process": workers are processes, each with its own engine (the event loop keeps its GIL);
     #: "thread": threads of the server process (also the fallback if processes cannot start).
     frt_executor: Literal["process", "thread"] = "process"
-    #: Niceness added to exact-set worker processes (which also run on batch scheduling): on a busy
-    #: machine the server's requests run first and exact sets take what is left; the checks answer
-    #: from conservative sets meanwhile. 19 kept the sustained bench's checks faster than 5 did.
+    #: How exact-set worker processes run below the server (``service.exact_worker.lower_priority``):
+    #: "idle" (SCHED_IDLE) only on CPUs with nothing else to run, which the server's wake-ups treat
+    #: as idle; "batch" (SCHED_BATCH plus ``frt_worker_nice``). On a busy machine the server's
+    #: requests run first and exact sets take what is left; checks answer from conservative sets
+    #: meanwhile.
+    frt_worker_policy: Literal["idle", "batch"] = "idle"
+    #: Niceness added to "batch" workers (19 kept the sustained bench's checks faster than 5 did).
     frt_worker_nice: int = Field(19, ge=0, le=19)
     #: Exact FRTs kept in memory, keyed by (agent, FRT version, inputs); least recently used go first.
     frt_cache_size: int = Field(1024, ge=1)

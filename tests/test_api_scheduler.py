@@ -212,6 +212,22 @@ def test_worker_processes_compute_the_same_set_as_threads(
     assert there.slice(20).equals(here.slice(20))
 
 
+@pytest.mark.skipif(not hasattr(os, "SCHED_IDLE"), reason="Linux scheduling policies")
+@pytest.mark.parametrize(("policy", "expected"), [("idle", "SCHED_IDLE"), ("batch", "SCHED_BATCH")])
+def test_worker_processes_run_below_the_server(
+    analytic_model_path: Path, policy: str, expected: str
+) -> None:
+    pool = start_pool(analytic_model_path, workers=1, nice=3, policy=policy)
+    try:
+        (pid,) = pool.pids
+        assert os.sched_getscheduler(pid) == getattr(os, expected)
+        assert os.sched_getscheduler(0) == os.SCHED_OTHER  # the server's own is left alone
+        niceness = os.getpriority(os.PRIO_PROCESS, pid) - os.getpriority(os.PRIO_PROCESS, 0)
+        assert niceness == (3 if policy == "batch" else 0)
+    finally:
+        pool.shutdown()
+
+
 class _DiesInAWorker:
     """A task that kills the worker process running it, but works in the server's own."""
 

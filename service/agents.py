@@ -8,7 +8,6 @@ check -> start the exact FRT of the new version in the background and answer at 
 
 from __future__ import annotations
 
-import asyncio
 from typing import Any
 
 import numpy as np
@@ -117,10 +116,9 @@ async def observe(
     state, under the agent's lock). With ``wait_frt_s`` > 0 the answer waits that long at most for
     the new version's exact FRT (``frt_ready`` says whether it came): a planner that needs the
     fresh set saves the round trip of a waiting ``GET``."""
-    # Let requests already waiting on the event loop (collision checks, with deadlines) go before
-    # this observation's few milliseconds of numerical work: a burst of observations otherwise
-    # queues a check behind all of them.
-    await asyncio.sleep(0)
+    # Collision checks (deadlines) before this observation's few milliseconds of numerical work:
+    # requests already waiting on the event loop go first, and checks in flight finish first.
+    await services.priority.observation_turn()
     settings = services.settings
     engine = services.require_engine()
     check_prediction_steps("prediction", request.prediction.mean, settings)

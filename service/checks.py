@@ -276,15 +276,23 @@ def _respond_all(
 async def check_agent(
     services: Services, agent_id: str, request: CollisionCheckRequest, arrival: float
 ) -> CollisionCheckResponse:
-    check_trajectory("trajectory", request.trajectory, services.settings)
-    services.require_engine()
-    state = await services.store.get(agent_id)
-    if state is None:
-        raise AgentNotFoundError(agent_id)
-    return (await answer_states(services, [state], request, arrival))[0]
+    with services.priority.check():
+        check_trajectory("trajectory", request.trajectory, services.settings)
+        services.require_engine()
+        state = await services.store.get(agent_id)
+        if state is None:
+            raise AgentNotFoundError(agent_id)
+        return (await answer_states(services, [state], request, arrival))[0]
 
 
 async def check_agents_at_once(
+    services: Services, request: MultiCollisionCheckRequest, arrival: float
+) -> MultiCollisionCheckResponse:
+    with services.priority.check():
+        return await _check_agents_at_once(services, request, arrival)
+
+
+async def _check_agents_at_once(
     services: Services, request: MultiCollisionCheckRequest, arrival: float
 ) -> MultiCollisionCheckResponse:
     settings = services.settings

@@ -27,6 +27,7 @@ from service.exact_worker import ExactTask, start_pool, warm_up_task
 from service.memory import freeze_start_up_objects, keep_freed_memory
 from service.metrics import Metrics
 from service.model_runtime import ValueModel
+from service.priority import ChecksFirst
 from service.scheduler import FRTKey, FRTScheduler, LRUCache, timed
 from service.settings import Settings
 from service.store import AgentState, AgentStore, make_store
@@ -83,6 +84,8 @@ class Services:
     _answer_s_per_agent: float = field(default=0.0, repr=False)
     #: Draws the tubes time-indexed checks need, now or between requests.
     tubes: TubeBuilder = field(default_factory=TubeBuilder, repr=False)
+    #: Holds observations' numerical work back while collision checks are in flight.
+    priority: ChecksFirst = field(default_factory=ChecksFirst, repr=False)
 
     @classmethod
     def build(cls, settings: Settings) -> Services:

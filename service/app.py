@@ -14,6 +14,7 @@ from service.limits import openapi_with_limits
 from service.logs import configure_logging
 from service.middleware import BodySizeLimitMiddleware, RequestContextMiddleware
 from service.routes import agents, collision, contours, health, model, stateless, stream
+from service.routes.params import query_parameters_checked
 from service.services import Services
 from service.settings import Settings, get_settings
 
@@ -57,9 +58,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.openapi = openapi  # type: ignore[method-assign]
 
     app.include_router(health.router)
-    documented_auth = [Depends(bearer_scheme)]
+    checked = [Depends(bearer_scheme), Depends(query_parameters_checked)]
     for router in (agents, collision, contours, stateless, model):
-        app.include_router(router.router, dependencies=documented_auth)
+        app.include_router(router.router, dependencies=checked)
     app.include_router(stream.router)
     return app
 

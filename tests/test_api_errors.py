@@ -158,6 +158,31 @@ def test_contour_query_errors(client: TestClient) -> None:
     assert r.status_code == 200
 
 
+def test_query_parameters_are_neither_unknown_nor_repeated(client: TestClient) -> None:
+    client.post("/v1/agents/q/observations", json=observation(1.0))
+    # A list parameter's repeats add to it: the same contours as the comma-separated list.
+    together = client.get("/v1/agents/q/frt", params={"slices": "1.0,2.0", "include": "C"})
+    repeated = client.get("/v1/agents/q/frt", params=[("slices", "1.0"), ("slices", "2.0"),
+                                                      ("include", "C")])  # fmt: skip
+    assert together.status_code == repeated.status_code == 200
+    assert repeated.json() == together.json() and len(repeated.json()["slices"]) == 2
+    r = client.get("/v1/agents/q/frt", params=[("include", "K"), ("include", "C")])
+    assert r.status_code == 200 and set(r.json()["tube"]) == {"K", "C"}
+    assert field_of(client.get("/v1/agents/q/frt", params={"include": ""})) == "include"
+    # A single-valued parameter given twice, or one the route does not take: named, not dropped.
+    twice = [("tube", "false"), ("tube", "true")]
+    assert field_of(client.get("/v1/agents/q/frt", params=twice)) == "tube"
+    waits = [("wait_frt_ms", "1"), ("wait_frt_ms", "2")]
+    assert field_of(client.get("/v1/agents/q", params=waits)) == "wait_frt_ms"
+    assert field_of(client.get("/v1/agents/q/frt", params={"slice": "1.0"})) == "slice"
+    r = client.post("/v1/agents/q/observations", params={"wait": "5"}, json=observation(2.0))
+    assert field_of(r) == "wait"
+    assert client.get("/v1/agents/q").json()["timestamp"] == 1.0  # refused before any change
+    assert field_of(client.get("/v1/model", params={"verbose": "1"})) == "verbose"
+    long = ",".join(["1.0"] * 1100)
+    assert field_of(client.get("/v1/agents/q/frt", params={"slices": long})) == "slices"
+
+
 def test_unknown_agents_are_404(client: TestClient) -> None:
     check = {"trajectory": [{"t": 1.0, "x": 0.0, "y": 0.0}]}
     assert client.get("/v1/agents/nobody").status_code == 404

@@ -7,7 +7,7 @@ from typing import Annotated
 from fastapi import APIRouter, Query
 
 from service import contours
-from service.routes.params import AgentIdPath, ServicesDep
+from service.routes.params import AgentIdPath, ServicesDep, joined
 from service.schemas import ContoursResponse
 
 router = APIRouter(prefix="/v1", tags=["frt"])
@@ -18,15 +18,20 @@ async def agent_contours(
     agent_id: AgentIdPath,
     services: ServicesDep,
     slices: Annotated[
-        str | None,
-        Query(max_length=4096, description="comma-separated seconds after the observation"),
+        list[str] | None,
+        Query(description="comma-separated seconds after the observation (repeats add to it)"),
     ] = None,
-    include: Annotated[str, Query(max_length=16, description="subset of K,C")] = "K,C",
+    include: Annotated[
+        list[str] | None, Query(description="comma-separated subset of K,C (default: both)")
+    ] = None,
     tube: Annotated[bool, Query(description="include the whole-horizon tube")] = True,
     collision_radius: Annotated[
         float | None, Query(ge=0.0, le=100.0, description="default: the agent's R_col")
     ] = None,
 ) -> ContoursResponse:
     """The whole-horizon tube and the requested time slices, in the world frame."""
-    query = contours.parse_query(slices, include, tube)
+    parts = joined("include", include, 16)
+    query = contours.parse_query(
+        joined("slices", slices, 4096), "K,C" if parts is None else parts, tube
+    )
     return await contours.agent_contours(services, agent_id, query, collision_radius)

@@ -109,9 +109,10 @@ async def answer_states(
     services.require_engine()
     deadline_ms = request.deadline_ms or settings.deadline_ms
     jobs = [services.job_for(state) for state in states]
+    costs = services.answer_costs
     # Keep time to answer every agent once the wait is over: a planner's check of 50 agents takes
     # milliseconds to answer, which a wait up to half the deadline would push past it.
-    budget = wait_budget_s(arrival, deadline_ms, settings) - services.answer_time_s(len(states))
+    budget = wait_budget_s(arrival, deadline_ms, settings) - costs.upper_s(len(states), 0)
     # Cached sets first, without a task each (a planner's check of 50 agents mostly finds them).
     exact = services.cached_exact(jobs)
     late = [i for i, frt in enumerate(exact) if frt is None]
@@ -123,6 +124,7 @@ async def answer_states(
     for i, future in waiting.items():
         if future.done() and not future.cancelled() and future.exception() is None:
             exact[i] = future.result()
+    _answer_in_time(services, exact, arrival, deadline_ms)
 
     xy = np.array([[p.x, p.y] for p in request.trajectory], dtype=np.float64)
     times = np.array([p.t for p in request.trajectory], dtype=np.float64)
@@ -145,6 +147,8 @@ async def answer_states(
             strict=True,
         )
     )
+    boxes_done = time.perf_counter()
+    costs.conservative.record(boxes_done - start, len(boxes))
     chosen = {i: frt if frt is not None else conservative[i] for i, frt in enumerate(exact)}
     # The exact sets (FRTSet.clearance) together, in one vectorised call each; any other kind alone.
     pending = [i for i in chosen if i not in distances]
@@ -153,19 +157,46 @@ async def answer_states(
     plain_times = {i: t_rel(i) for i in plain}
     drawn_before = services.tubes.spent_s
     coarse = _fit_tubes_to_deadline(
-        services, {i: chosen[i] for i in plain}, plain_times, arrival, deadline_ms, len(states)
+        services,
+        {i: chosen[i] for i in plain},
+        plain_times,
+        arrival,
+        deadline_ms,
+        costs.exact.upper_s(len(pending)) + costs.response.upper_s(len(states)),
     )
     together = tube_clearances([chosen[i] for i in plain], xy, [plain_times[i] for i in plain])
     distances.update(zip(plain, together, strict=True))
     for i in rest:
         distances[i] = chosen[i].clearance(xy, t_rel(i))
-    results = _respond_all(services, states, exact, request, times, distances, coarse)
     # Tubes drawn for this check are budgeted on their own (TubeBuilder.cost_s).
     drawing = services.tubes.spent_s - drawn_before
-    services.record_answer_time(time.perf_counter() - start - drawing, len(states))
+    sets_done = time.perf_counter()
+    costs.exact.record(sets_done - boxes_done - drawing, len(pending))
+    results = _respond_all(services, states, exact, request, times, distances, coarse)
+    costs.response.record(time.perf_counter() - sets_done, len(states))
     if time.perf_counter() - arrival > deadline_ms / 1000.0:
         services.metrics.deadline_misses.inc()
     return results
+
+
+def _answer_in_time(
+    services: Services, exact: list[FRTSet | None], arrival: float, deadline_ms: float
+) -> None:
+    """Answer from the conservative sets, which contain the exact ones and cost a fraction to
+    measure, the agents whose exact sets there is no time left to answer from (under load,
+    answering takes several times its quiet cost): ``exact[i]`` set to None, in place, beyond the
+    first that fit before the deadline's reserve."""
+    found = [i for i, frt in enumerate(exact) if frt is not None]
+    if not found:
+        return
+    left = (
+        deadline_ms / 1000.0
+        - (time.perf_counter() - arrival)
+        - services.settings.deadline_reserve_ms / 1000.0
+    )
+    keep = services.answer_costs.exact_agents_within(left, len(found), len(exact))
+    for i in found[keep:]:
+        exact[i] = None
 
 
 def _fit_tubes_to_deadline(
@@ -174,12 +205,12 @@ def _fit_tubes_to_deadline(
     t_rel: dict[int, np.ndarray | None],
     arrival: float,
     deadline_ms: float,
-    agents: int,
+    answer_s: float,
 ) -> set[int]:
-    """Draw the tubes a time-indexed check needs if there is time before the deadline's reserve;
-    else check the agents that lack some against tubes already drawn (``service.tube_builder``),
-    changing their ``t_rel`` in place, and draw the missing ones between requests. Returns the
-    agents answered so (conservatively)."""
+    """Draw the tubes a time-indexed check needs if there is time before the deadline's reserve
+    and the ``answer_s`` that answering then takes; else check the agents that lack some against
+    tubes already drawn (``service.tube_builder``), changing their ``t_rel`` in place, and draw the
+    missing ones between requests. Returns the agents answered so (conservatively)."""
     missing = {
         i: frt.missing_tubes(frt.tube_indices(times).tolist())
         for i, frt in sets.items()
@@ -192,7 +223,7 @@ def _fit_tubes_to_deadline(
         deadline_ms / 1000.0
         - (time.perf_counter() - arrival)
         - services.settings.deadline_reserve_ms / 1000.0
-        - services.answer_time_s(agents)
+        - answer_s
     )
     if count * services.tubes.cost_s <= left:
         for i, indices in missing.items():

@@ -21,6 +21,7 @@ import numpy as np
 from starlette.concurrency import run_in_threadpool
 from starlette.requests import HTTPConnection
 
+from service.answer_cost import AnswerCosts
 from service.engine import FRTEngine, FRTSet, Pose
 from service.errors import ServiceUnavailableError
 from service.exact_worker import ExactTask, start_pool, warm_up_task
@@ -80,8 +81,8 @@ class Services:
     model_name: str | None = None
     model_error: str | None = "model is loading"
     _loader: asyncio.Task[None] | None = field(default=None, repr=False)
-    #: Recent seconds per agent to answer a collision check once its sets are known (moving average).
-    _answer_s_per_agent: float = field(default=0.0, repr=False)
+    #: What answering a collision check costs per agent once its sets are known.
+    answer_costs: AnswerCosts = field(default_factory=AnswerCosts, repr=False)
     #: Draws the tubes time-indexed checks need, now or between requests.
     tubes: TubeBuilder = field(default_factory=TubeBuilder, repr=False)
     #: Holds observations' numerical work back while collision checks are in flight.
@@ -235,14 +236,6 @@ class Services:
 
         result, _ = self.conservative_cache.get_or_compute(job.key, compute)
         return result  # type: ignore[no-any-return]
-
-    def record_answer_time(self, seconds: float, agents: int) -> None:
-        if agents > 0:
-            self._answer_s_per_agent += 0.2 * (seconds / agents - self._answer_s_per_agent)
-
-    def answer_time_s(self, agents: int) -> float:
-        """About how long answering ``agents`` agents of one collision check takes here."""
-        return self._answer_s_per_agent * agents
 
     def horizon_s(self) -> float:
         engine = self.engine

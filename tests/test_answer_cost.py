@@ -1,0 +1,85 @@
+"""Answering within the deadline: cost estimates, and exact sets answered conservatively when there
+is no time left to measure them (service.answer_cost, service.checks)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from fastapi.testclient import TestClient
+
+from service.answer_cost import SPREAD, AnswerCosts, CostEstimate
+from service.settings import Settings
+from tests.fixtures.payloads import observation
+from tests.test_api_errors import client_for
+
+
+def test_an_estimate_allows_for_the_spread_of_what_it_saw() -> None:
+    estimate = CostEstimate()
+    assert estimate.upper_s(50) == 0.0  # nothing measured: no reason to hold back
+    for seconds in (0.010, 0.030) * 20:  # 50 agents at 0.2 or 0.6 ms each
+        estimate.record(seconds, 50)
+    per_agent = estimate.upper_s(1)
+    assert 0.2e-3 < estimate.mean_s < 0.6e-3
+    assert per_agent > 0.6e-3  # above the slowest it saw: mean + SPREAD deviations
+    assert math.isclose(estimate.upper_s(50), 50 * per_agent)
+    assert math.isclose(per_agent, estimate.mean_s + SPREAD * estimate.deviation_s)
+    estimate.record(1.0, 0)  # no agents: nothing to learn
+    assert math.isclose(estimate.upper_s(1), per_agent)
+
+
+def _costs(exact_s: float, conservative_s: float, response_s: float) -> AnswerCosts:
+    return AnswerCosts(
+        exact=CostEstimate(exact_s, 0.0, True),
+        conservative=CostEstimate(conservative_s, 0.0, True),
+        response=CostEstimate(response_s, 0.0, True),
+    )
+
+
+def test_as_many_exact_answers_as_fit() -> None:
+    costs = _costs(exact_s=1e-3, conservative_s=0.1e-3, response_s=0.05e-3)
+    # 50 agents, 40 with exact sets: all conservative costs 7.5 ms, each exact one 0.9 ms more.
+    assert math.isclose(costs.upper_s(0, 50), 7.5e-3)
+    for seconds in (0.0, 7.0e-3, 7.5e-3 + 0.89e-3, 7.5e-3 + 0.91e-3, 0.02, 1.0):
+        k = costs.exact_agents_within(seconds, 40, 50)
+        assert 0 <= k <= 40
+        assert k == 0 or costs.upper_s(k, 50 - k) <= seconds + 1e-12
+        assert k == 40 or costs.upper_s(k + 1, 49 - k) > seconds
+    assert costs.exact_agents_within(1.0, 40, 50) == 40
+    assert costs.exact_agents_within(7.0e-3, 40, 50) == 0
+    cheaper = _costs(exact_s=0.1e-3, conservative_s=0.2e-3, response_s=0.0)
+    assert cheaper.exact_agents_within(0.011, 40, 50) == 40
+
+
+@pytest.fixture(scope="module")
+def client(analytic_model_path: Path) -> Iterator[TestClient]:
+    yield from client_for(Settings(model_path=analytic_model_path, log_requests=False))
+
+
+def test_an_exact_set_too_slow_to_answer_from_is_answered_conservatively(
+    client: TestClient,
+) -> None:
+    client.post("/v1/agents/slow/observations", params={"wait_frt_ms": 5000}, json=observation(1.0))
+    check = {
+        "trajectory": [{"t": 1.0 + 0.1 * i, "x": 2.0 + i, "y": 0.5} for i in range(10)],
+        "deadline_ms": 20.0,
+    }
+    quick = client.post("/v1/agents/slow/collision-check", json=check).json()
+    assert quick["conservative"] is False  # the exact set is ready and cheap to answer from
+    costs: AnswerCosts = client.app.state.services.answer_costs  # type: ignore[attr-defined]
+    learned = costs.exact
+    costs.exact = CostEstimate(mean_s=1.0, deviation_s=0.0, measured=True)  # a second per agent
+    try:
+        slow = client.post("/v1/agents/slow/collision-check", json=check).json()
+        ample = client.post(
+            "/v1/agents/slow/collision-check", json={**check, "deadline_ms": 5000.0}
+        ).json()
+    finally:
+        costs.exact = learned
+    assert slow["conservative"] is True and slow["frt_version"] == quick["frt_version"]
+    # The conservative set contains the exact one: never less safe, point by point.
+    assert all(c <= q + 1e-9 for c, q in zip(slow["clearance"], quick["clearance"], strict=True))
+    assert slow["collision"] or not quick["collision"]
+    assert ample["conservative"] is False and ample["clearance"] == quick["clearance"]

@@ -241,5 +241,5 @@ async def get_agent(services: Services, agent_id: str, wait_frt_s: float = 0.0) 
 async def delete_agent(services: Services, agent_id: str) -> DeleteResponse:
     if not await services.store.delete(agent_id):
         raise AgentNotFoundError(agent_id)
-    services.scheduler.forget(agent_id)
+    services.forget(agent_id)
     return DeleteResponse(agent_id=agent_id, deleted=True)

@@ -190,6 +190,11 @@ class Services:
             tuple(state.control_bounds),
         )
 
+    def forget(self, agent_id: str) -> None:
+        """Drop every set of ``agent_id``, exact and conservative, and its queued exact set."""
+        self.scheduler.forget(agent_id)
+        self.conservative_cache.forget(agent_id)
+
     def submit(self, job: FRTJob) -> None:
         """Start computing the exact set of ``job`` in the background."""
         self.scheduler.submit(job.key, self.exact_task(job))

@@ -19,7 +19,9 @@ from service.engine import FRTEngine, Pose
 from service.exact_worker import ExactTask, start_pool
 from service.metrics import Metrics
 from service.model_runtime import ValueModel
-from service.scheduler import FRTKey, FRTScheduler
+from service.scheduler import FRTKey, FRTScheduler, LRUCache
+from service.services import Services
+from service.settings import Settings
 
 
 @pytest.fixture
@@ -71,6 +73,62 @@ def test_cache_is_a_bounded_lru(scheduler: FRTScheduler) -> None:
         assert run(scheduler, key("s", version), version) == version
     assert not scheduler.is_ready(key("s", 1))
     assert scheduler.is_ready(key("s", 2)) and scheduler.is_ready(key("s", 3))
+
+
+def test_an_agent_keeps_its_two_latest_versions_only() -> None:
+    s = FRTScheduler(workers=1, cache_size=100, metrics=Metrics())
+    s.start()
+    try:
+        for version in range(1, 6):
+            run(s, key("a", version), version)
+            run(s, key("b", version), -version)
+        for agent in ("a", "b"):
+            assert [v for v in range(1, 6) if s.is_ready(key(agent, v))] == [4, 5]
+        assert s.lookup(key("a", 5)) == 5 and s.lookup(key("b", 4)) == -4
+        # Versions that restart (an agent deleted elsewhere and created again) are the latest too.
+        run(s, key("a", 1), "again")
+        assert s.lookup(key("a", 1)) == "again" and s.is_ready(key("a", 5))
+        assert not s.is_ready(key("a", 4))
+        # The stateless endpoint's sets (agent "") are bounded by the cache size only.
+        for version in range(1, 6):
+            run(s, key("", version), version)
+        assert all(s.is_ready(key("", v)) for v in range(1, 6))
+    finally:
+        s.shutdown()
+
+
+def test_conservative_cache_keeps_two_versions_and_forgets_agents() -> None:
+    cache = LRUCache(size=3)
+    for version in (1, 2, 3):
+        assert cache.get_or_compute(key("a", version), lambda v=version: v) == (version, False)
+    assert cache.get(key("a", 1)) is None and cache.get(key("a", 2)) == 2
+    assert cache.get_or_compute(key("a", 3), lambda: "recomputed") == (3, True)
+    cache.put(key("b", 1), "b1")
+    cache.put(key("c", 1), "c1")  # over the size: the least recently used (a 2) goes
+    assert len(cache) == 3 and cache.get(key("a", 2)) is None
+    cache.forget("a")
+    assert key("a", 3) not in cache and cache.get(key("b", 1)) == "b1" and len(cache) == 2
+    for version in (4, 5, 6):  # b's list of keys shrank with the eviction: still two kept
+        cache.put(key("b", version), version)
+    assert [v for v in (1, 4, 5, 6) if key("b", v) in cache] == [5, 6]
+
+
+def test_forgetting_an_agent_drops_its_exact_and_conservative_sets() -> None:
+    services = Services.build(Settings())
+    services.scheduler.start()
+    try:
+        run(services.scheduler, key("a", 1), "exact a")
+        run(services.scheduler, key("b", 1), "exact b")
+        for agent in ("a", "b"):
+            services.conservative_cache.put(key(agent, 1), f"boxes {agent}")
+        services.forget("a")
+        assert not services.scheduler.is_ready(key("a", 1)) and key("a", 1) not in (
+            services.conservative_cache
+        )
+        assert services.scheduler.lookup(key("b", 1)) == "exact b"
+        assert services.conservative_cache.get(key("b", 1)) == "boxes b"
+    finally:
+        services.scheduler.shutdown()
 
 
 def test_superseded_queued_versions_are_cancelled(scheduler: FRTScheduler) -> None:

@@ -168,7 +168,7 @@ async def answer_states(
     distances.update(zip(plain, together, strict=True))
     for i in rest:
         distances[i] = chosen[i].clearance(xy, t_rel(i))
-    # Tubes drawn for this check are budgeted on their own (TubeBuilder.cost_s).
+    # Tubes drawn for this check are budgeted on their own (TubeBuilder.cost).
     drawing = services.tubes.spent_s - drawn_before
     sets_done = time.perf_counter()
     costs.exact.record(sets_done - boxes_done - drawing, len(pending))
@@ -207,34 +207,27 @@ def _fit_tubes_to_deadline(
     deadline_ms: float,
     answer_s: float,
 ) -> set[int]:
-    """Draw the tubes a time-indexed check needs if there is time before the deadline's reserve
-    and the ``answer_s`` that answering then takes; else check the agents that lack some against
-    tubes already drawn (``service.tube_builder``), changing their ``t_rel`` in place, and draw the
-    missing ones between requests. Returns the agents answered so (conservatively)."""
-    missing = {
-        i: frt.missing_tubes(frt.tube_indices(times).tolist())
-        for i, frt in sets.items()
-        if (times := t_rel[i]) is not None
-    }
-    count = sum(len(m) for m in missing.values())
-    if count == 0:
-        return set()
-    left = (
-        deadline_ms / 1000.0
-        - (time.perf_counter() - arrival)
-        - services.settings.deadline_reserve_ms / 1000.0
-        - answer_s
-    )
-    if count * services.tubes.cost_s <= left:
-        for i, indices in missing.items():
-            services.tubes.build(sets[i], indices)
-        return set()
-    coarse = {i for i, indices in missing.items() if indices}
-    for i in coarse:
+    """Draw the tubes a time-indexed check needs, agent by agent, where all of an agent's fit in
+    the check's budget (:func:`wait_budget_s`, less the ``answer_s`` that answering then takes) at
+    the learned cost, reading the clock before each; check the agents still lacking some against
+    tubes already drawn (``service.tube_builder``), changing their ``t_rel`` in place, and draw
+    the rest between requests. Returns the agents answered so (conservatively)."""
+    until = time.perf_counter() + wait_budget_s(arrival, deadline_ms, services.settings) - answer_s
+    per_tube = services.tubes.cost.upper_s(1)
+    coarse: set[int] = set()
+    for i, frt in sets.items():
         times = t_rel[i]
-        assert times is not None
-        t_rel[i] = within_built_tubes(sets[i], times)
-        services.tubes.later(sets[i], missing[i])
+        if times is None:
+            continue
+        needed = frt.tube_indices(times).tolist()
+        missing = frt.missing_tubes(needed)
+        if not missing:
+            continue
+        fits = time.perf_counter() + len(missing) * per_tube <= until
+        if not (fits and services.tubes.build(frt, missing, until)):
+            coarse.add(i)
+            t_rel[i] = within_built_tubes(frt, times)
+            services.tubes.later(frt, frt.missing_tubes(missing))
     return coarse
 
 

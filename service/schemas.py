@@ -234,8 +234,8 @@ class CollisionCheckResponse(CollisionAnswer):
     frt_version: int
     conservative: bool = Field(
         description="answered from a set containing the exact one: the outer bound while the exact "
-        "set is late, or (time_indexed) tubes ending later than the points' own while those are "
-        "not drawn in time"
+        "set is late or there is no time left to measure it, or (time_indexed) tubes ending later "
+        "than the points' own while those are not drawn in time"
     )
     horizon_end: float = Field(description="time after which the FRT says nothing")
 

@@ -53,7 +53,8 @@ class Settings(BaseSettings):
     frt_worker_policy: Literal["idle", "batch"] = "idle"
     #: Niceness added to "batch" workers (19 kept the sustained bench's checks faster than 5 did).
     frt_worker_nice: int = Field(19, ge=0, le=19)
-    #: Exact FRTs kept in memory, keyed by (agent, FRT version, inputs); least recently used go first.
+    #: Exact FRTs kept in memory, keyed by (agent, FRT version, inputs): at most the two latest
+    #: versions of each agent (``service.scheduler.VERSIONS_PER_AGENT``); least recently used go first.
     frt_cache_size: int = Field(1024, ge=1)
     #: Default deadline of a collision check, measured from the request's arrival.
     deadline_ms: float = Field(20.0, gt=0.0, le=60_000.0)

@@ -124,7 +124,8 @@ async def answer_states(
     for i, future in waiting.items():
         if future.done() and not future.cancelled() and future.exception() is None:
             exact[i] = future.result()
-    _answer_in_time(services, exact, arrival, deadline_ms)
+    not_ready = sum(frt is None for frt in exact)
+    no_time = _answer_in_time(services, exact, arrival, deadline_ms)
 
     xy = np.array([[p.x, p.y] for p in request.trajectory], dtype=np.float64)
     times = np.array([p.t for p in request.trajectory], dtype=np.float64)
@@ -173,6 +174,10 @@ async def answer_states(
     sets_done = time.perf_counter()
     costs.exact.record(sets_done - boxes_done - drawing, len(pending))
     results = _respond_all(services, states, exact, request, times, distances, coarse)
+    reasons = services.metrics.conservative_reasons
+    for reason, count in (("not_ready", not_ready), ("no_time", no_time), ("tubes", len(coarse))):
+        if count:
+            reasons.labels(reason).inc(count)
     costs.response.record(time.perf_counter() - sets_done, len(states))
     if time.perf_counter() - arrival > deadline_ms / 1000.0:
         services.metrics.deadline_misses.inc()
@@ -181,14 +186,14 @@ async def answer_states(
 
 def _answer_in_time(
     services: Services, exact: list[FRTSet | None], arrival: float, deadline_ms: float
-) -> None:
+) -> int:
     """Answer from the conservative sets, which contain the exact ones and cost a fraction to
     measure, the agents whose exact sets there is no time left to answer from (under load,
     answering takes several times its quiet cost): ``exact[i]`` set to None, in place, beyond the
-    first that fit before the deadline's reserve."""
+    first that fit before the deadline's reserve. Returns how many."""
     found = [i for i, frt in enumerate(exact) if frt is not None]
     if not found:
-        return
+        return 0
     left = (
         deadline_ms / 1000.0
         - (time.perf_counter() - arrival)
@@ -197,6 +202,7 @@ def _answer_in_time(
     keep = services.answer_costs.exact_agents_within(left, len(found), len(exact))
     for i in found[keep:]:
         exact[i] = None
+    return len(found) - keep
 
 
 def _fit_tubes_to_deadline(

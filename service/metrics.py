@@ -54,6 +54,14 @@ class Metrics:
             ["source"],
             registry=r,
         )
+        self.conservative_reasons = Counter(
+            "frt_conservative_answers",
+            "Per-agent collision answers from a set containing the exact one, by why: the exact "
+            "set not ready in time (not_ready), no time left to measure it (no_time), or tubes of "
+            "a time-indexed check not drawn in time (tubes)",
+            ["reason"],
+            registry=r,
+        )
         self.deadline_misses = Counter(
             "frt_deadline_misses",
             "Collision checks answered after their deadline",

@@ -68,6 +68,7 @@ def test_an_exact_set_too_slow_to_answer_from_is_answered_conservatively(
     }
     quick = client.post("/v1/agents/slow/collision-check", json=check).json()
     assert quick["conservative"] is False  # the exact set is ready and cheap to answer from
+    before = _conservative_answers(client)
     costs: AnswerCosts = client.app.state.services.answer_costs  # type: ignore[attr-defined]
     learned = costs.exact
     costs.exact = CostEstimate(mean_s=1.0, deviation_s=0.0, measured=True)  # a second per agent
@@ -79,7 +80,20 @@ def test_an_exact_set_too_slow_to_answer_from_is_answered_conservatively(
     finally:
         costs.exact = learned
     assert slow["conservative"] is True and slow["frt_version"] == quick["frt_version"]
+    after = _conservative_answers(client)
+    assert after.get("no_time", 0.0) == before.get("no_time", 0.0) + 1  # and says why, once
+    assert after.get("not_ready", 0.0) == before.get("not_ready", 0.0)
     # The conservative set contains the exact one: never less safe, point by point.
     assert all(c <= q + 1e-9 for c, q in zip(slow["clearance"], quick["clearance"], strict=True))
     assert slow["collision"] or not quick["collision"]
     assert ample["conservative"] is False and ample["clearance"] == quick["clearance"]
+
+
+def _conservative_answers(client: TestClient) -> dict[str, float]:
+    """``frt_conservative_answers_total`` by reason, from /metrics."""
+    out = {}
+    for line in client.get("/metrics").text.splitlines():
+        if line.startswith("frt_conservative_answers_total{"):
+            reason = line.split('reason="')[1].split('"')[0]
+            out[reason] = float(line.rsplit(" ", 1)[1])
+    return out

@@ -256,6 +256,13 @@ def _fallback_then_exact(http: httpx.Client) -> tuple[dict, dict]:
     return fast.json(), exact.json()
 
 
+def conservative_answers(http: httpx.Client, reason: str) -> float:
+    """``frt_conservative_answers_total{reason=...}`` from /metrics (0 before the first)."""
+    prefix = f'frt_conservative_answers_total{{reason="{reason}"}} '
+    lines = [line for line in http.get("/metrics").text.splitlines() if line.startswith(prefix)]
+    return float(lines[0].split()[-1]) if lines else 0.0
+
+
 def test_tubes_not_drawn_in_time_give_a_conservative_answer_then_an_exact_one(
     http: httpx.Client,
 ) -> None:
@@ -268,8 +275,10 @@ def test_tubes_not_drawn_in_time_give_a_conservative_answer_then_an_exact_one(
     wait_exact(http, agent)
     points = [{"t": 0.1 * k, "x": 3.0 + 0.6 * k, "y": 2.5} for k in range(1, 30)]
     hurried = {"trajectory": points, "mode": "time_indexed", "deadline_ms": 10.0}
+    tubes_before = conservative_answers(http, "tubes")
     first = http.post(f"/v1/agents/{agent}/collision-check", json=hurried).json()
     assert first["conservative"] is True
+    assert conservative_answers(http, "tubes") == tubes_before + 1  # /metrics says why
     deadline = time.monotonic() + 10
     while True:  # the tubes are drawn between requests
         later = http.post(f"/v1/agents/{agent}/collision-check", json=hurried).json()
@@ -284,8 +293,10 @@ def test_tubes_not_drawn_in_time_give_a_conservative_answer_then_an_exact_one(
 
 
 def test_a_late_exact_set_gives_a_conservative_answer_in_time(http: httpx.Client) -> None:
+    not_ready_before = conservative_answers(http, "not_ready")
     fast, exact = fallback_then_exact(http)
     assert fast["conservative"] is True, "the exact set was ready within microseconds?"
+    assert conservative_answers(http, "not_ready") >= not_ready_before + 1
     assert exact["conservative"] is False, "the exact set was ready but not used"
     assert fast["frt_version"] == exact["frt_version"] == 1
     assert sum(c < 0 for c in exact["clearance"]) > 0  # some points do collide

@@ -1,10 +1,11 @@
 """Collision checks (API.md, "Collision check") within a deadline.
 
-Each agent's answer comes from the exact FRT of its current version if that is ready in time, else
-from the engine's conservative set, which contains the exact one (``conservative: true``). "In time"
-is :func:`wait_budget_s`: the deadline runs from the request's arrival, and part of it is kept for
-answering conservatively and for the trip back. Sets still queued behind others are not waited for. Clearance is the signed
-distance to K minus R_col: negative inside C.
+Each agent's answer comes from the exact FRT of its current version if that is ready in time and
+there is time left to measure it, else from the engine's conservative set, which contains the exact
+one (``conservative: true``). "In time" is :func:`wait_budget_s`: the deadline runs from the
+request's arrival, and part of it is kept for answering, at what answering costs here
+(``service.answer_cost``), and for the trip back. Sets still queued behind others are not waited
+for. Clearance is the signed distance to K minus R_col: negative inside C.
 """
 
 from __future__ import annotations

@@ -30,8 +30,7 @@ async def agent_contours(
     ] = None,
 ) -> ContoursResponse:
     """The whole-horizon tube and the requested time slices, in the world frame."""
-    parts = joined("include", include, 16)
     query = contours.parse_query(
-        joined("slices", slices, 4096), "K,C" if parts is None else parts, tube
+        joined("slices", slices, 4096), joined("include", include, 16), tube
     )
     return await contours.agent_contours(services, agent_id, query, collision_radius)

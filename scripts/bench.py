@@ -203,6 +203,7 @@ async def _planner(url: str, start_at: float, seconds: float, deadline_ms: float
     """Check all agents at 10 Hz with one multi-agent request each (API.md: POST
     /v1/collision-check), from ``start_at`` (time.time()) for ``seconds``."""
     check_times: list[float] = []
+    server_times: list[float] = []
     misses = conservative = errors = 0
     async with httpx.AsyncClient(base_url=url, timeout=5) as client:
         await asyncio.sleep(max(0.0, start_at - time.time()))
@@ -213,6 +214,7 @@ async def _planner(url: str, start_at: float, seconds: float, deadline_ms: float
             r = await client.post("/v1/collision-check", json=body)
             dt = time.perf_counter() - t0
             check_times.append(dt)
+            server_times.append(server_seconds(r))
             errors += r.status_code != 200
             if r.status_code == 200:
                 conservative += r.json()["conservative"]
@@ -220,10 +222,16 @@ async def _planner(url: str, start_at: float, seconds: float, deadline_ms: float
             await asyncio.sleep(max(0.0, 0.1 - dt))
     return {
         "check_times": check_times,
+        "server_times": server_times,
         "misses": misses,
         "conservative": conservative,
         "errors": errors,
     }
+
+
+def server_seconds(response: httpx.Response) -> float:
+    """The server's own time for a request, from its ``Server-Timing: app;dur=<ms>`` header."""
+    return float(response.headers["server-timing"].split("dur=")[1]) / 1000.0
 
 
 def _planner_process(url: str, start_at: float, seconds: float, deadline_ms: float, conn) -> None:
@@ -285,12 +293,27 @@ async def bench_sustained(url: str, agents: int, seconds: float, headers: dict) 
         "agents": agents,
         "seconds": seconds,
         "check_all": stats(checks["check_times"]),
+        # The same rounds from the server's Server-Timing (arrival to response start) and the rest
+        # of each round trip: the client's sending and reading, the network, the OS's scheduling.
+        "check_all_server": stats(checks["server_times"]),
+        "check_all_trip": stats(np.subtract(checks["check_times"], checks["server_times"])),
         "observe": stats(obs_times),
         "deadline_ms": deadline_ms,
         "deadline_misses_end_to_end": checks["misses"],
         "conservative_answers": checks["conservative"],
         "errors": errors + checks["errors"],
     }
+
+
+def agent_answer_sources(url: str) -> dict[str, int]:
+    """Per-agent collision answers so far by the set they came from (``exact``, ``conservative``),
+    from ``/metrics``."""
+    sources = {}
+    for line in httpx.get(f"{url}/metrics", timeout=10).text.splitlines():
+        if line.startswith("frt_collision_checks_total{"):
+            source = line.split('source="')[1].split('"')[0]
+            sources[source] = int(float(line.split()[-1]))
+    return sources
 
 
 def server_deadline_misses(url: str) -> int:
@@ -364,27 +387,38 @@ def main() -> None:
     parser.add_argument("--observations", type=int, default=60)
     parser.add_argument("--sustained-seconds", type=float, default=20.0)
     parser.add_argument("--naive", type=int, default=10)
+    parser.add_argument(
+        "--sustained-only",
+        action="store_true",
+        help="run only the sustained case (for comparing revisions run after run)",
+    )
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "bench.json")
     args = parser.parse_args()
     results: dict = {}
     with running_service(args.model.resolve()) as url:
-        with httpx.Client(base_url=url, timeout=10) as client:
-            results["collision_check_20pt_warm"] = bench_collision(client, args.checks)
-            results["http_floor_get_healthz"] = bench_http_floor(client, args.checks)
-            results.update(bench_observe_to_ready(client, args.observations))
-            results["contours_tube_plus_3_slices"] = bench_contours(client, args.observations)
+        if not args.sustained_only:
+            with httpx.Client(base_url=url, timeout=10) as client:
+                results["collision_check_20pt_warm"] = bench_collision(client, args.checks)
+                results["http_floor_get_healthz"] = bench_http_floor(client, args.checks)
+                results.update(bench_observe_to_ready(client, args.observations))
+                results["contours_tube_plus_3_slices"] = bench_contours(client, args.observations)
         before = server_deadline_misses(url)
+        sources_before = agent_answer_sources(url)
         results["sustained_50_agents"] = asyncio.run(
             bench_sustained(url, 50, args.sustained_seconds, {})
         )
-        results["sustained_50_agents"]["deadline_misses_server_side"] = (
-            server_deadline_misses(url) - before
-        )
-    results.update(bench_exact_in_process(args.model.resolve(), args.observations))
-    results["naive_dense_grid_per_query"] = bench_naive(args.model.resolve(), args.naive)
-    warm = results["collision_check_20pt_warm"]["p50_ms"]
-    naive = results["naive_dense_grid_per_query"]["p50_ms"]
-    results["naive_over_engine_p50_ratio"] = naive / warm if warm > 0 else math.inf
+        sustained = results["sustained_50_agents"]
+        sustained["deadline_misses_server_side"] = server_deadline_misses(url) - before
+        sustained["agent_answers"] = {
+            source: count - sources_before.get(source, 0)
+            for source, count in agent_answer_sources(url).items()
+        }
+    if not args.sustained_only:
+        results.update(bench_exact_in_process(args.model.resolve(), args.observations))
+        results["naive_dense_grid_per_query"] = bench_naive(args.model.resolve(), args.naive)
+        warm = results["collision_check_20pt_warm"]["p50_ms"]
+        naive = results["naive_dense_grid_per_query"]["p50_ms"]
+        results["naive_over_engine_p50_ratio"] = naive / warm if warm > 0 else math.inf
     width = max(len(k) for k in results)
     print(f"{'measure':{width}s}  {'p50 [ms]':>9s} {'p99 [ms]':>9s}")
     for name, r in results.items():
@@ -397,7 +431,20 @@ def main() -> None:
         f"{s['check_all']['n']} (server side {s['deadline_misses_server_side']}) "
         f"conservative={s['conservative_answers']} errors={s['errors']}"
     )
-    print(f"naive / engine (p50, same run): {results['naive_over_engine_p50_ratio']:.0f}x")
+    print(
+        f"{'  of which at the server (Server-Timing)':{width}s}  "
+        f"{s['check_all_server']['p50_ms']:9.2f} {s['check_all_server']['p99_ms']:9.2f}"
+    )
+    print(
+        f"{'  of which the trip and the client':{width}s}  "
+        f"{s['check_all_trip']['p50_ms']:9.2f} {s['check_all_trip']['p99_ms']:9.2f}"
+    )
+    answers = s["agent_answers"]
+    exact_share = answers.get("exact", 0) / max(sum(answers.values()), 1)
+    print(f"  per-agent answers from the exact set: {exact_share:.1%} of {sum(answers.values())}")
+    if "naive_over_engine_p50_ratio" in results:
+        ratio = results["naive_over_engine_p50_ratio"]
+        print(f"naive / engine (p50, same run): {ratio:.0f}x")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(results, indent=2))
     print(f"wrote {args.out}")

@@ -37,7 +37,11 @@ async def send_json(
 
 
 class RequestContextMiddleware:
-    """Stamps arrival time and a request id, then records latency per route and logs the request."""
+    """Stamps arrival time and a request id, then records latency per route and logs the request.
+
+    Every HTTP response carries ``Server-Timing: app;dur=<ms>``, the time from the request's arrival
+    to the response's start: a client subtracts it from its own round trip to see what the trip,
+    not the service, cost (a planner's deadline counts both)."""
 
     def __init__(self, app: ASGIApp, metrics: Metrics, log_requests: bool = True) -> None:
         self.app = app
@@ -65,6 +69,8 @@ class RequestContextMiddleware:
                 status = message["status"]
                 headers = list(message.get("headers", []))
                 headers.append((b"x-request-id", request_id.encode()))
+                duration_ms = (time.perf_counter() - start) * 1000.0
+                headers.append((b"server-timing", f"app;dur={duration_ms:.3f}".encode()))
                 message = {**message, "headers": headers}
             await send(message)
 

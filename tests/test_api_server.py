@@ -192,6 +192,26 @@ def test_collision_check_against_the_analytic_disc(http: httpx.Client) -> None:
     assert body["horizon_end"] == pytest.approx(103.0)
 
 
+def test_responses_say_how_long_the_server_took(http: httpx.Client) -> None:
+    """Server-Timing lets a planner split its round trip into the service's part and the trip's."""
+    agent = new_agent()
+    http.post(f"/v1/agents/{agent}/observations", json=observation(1.0))
+    for request in (
+        lambda: http.get("/healthz"),
+        lambda: http.post(
+            f"/v1/agents/{agent}/collision-check",
+            json={"trajectory": [{"t": 1.5, "x": 3.0, "y": 0.0}], "deadline_ms": 1000},
+        ),
+        lambda: http.get("/v1/agents/nobody"),
+    ):
+        t0 = time.perf_counter()
+        r = request()
+        round_trip_ms = (time.perf_counter() - t0) * 1000.0
+        name, duration = r.headers["server-timing"].split(";dur=")
+        assert name == "app"
+        assert 0.0 < float(duration) < round_trip_ms
+
+
 def test_time_indexed_mode_uses_the_tube_up_to_t(http: httpx.Client) -> None:
     agent = new_agent()
     speed = 5.0

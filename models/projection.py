@@ -51,11 +51,14 @@ class ProjectionNetwork(nn.Module):
     columns are ignored because W is their minimum.
     """
 
-    def __init__(self, width: int = 96, depth: int = 3) -> None:
+    def __init__(self, width: int = 96, depth: int = 3, polar: bool = False) -> None:
         super().__init__()
         self.frame = NominalFrame(12, HORIZON_S, INITIAL_SET)
         layers: list[nn.Module] = []
-        width_in = 16
+        #: With ``polar``, also the position's bearing and distance from the start: the set at an
+        #: instant is close to a band of distances per bearing, the notch behind the car included.
+        self.polar = polar
+        width_in = 16 + (4 if polar else 0)
         for _ in range(depth):
             layers += [nn.Linear(width_in, width), nn.SiLU()]
             width_in = width
@@ -90,10 +93,17 @@ class ProjectionNetwork(nn.Module):
                 x[:, COL["u1_max_start"]] / 2.0,
                 x[:, COL["u2_min_start"]] / 10.0,
                 x[:, COL["u2_max_start"]] / 10.0,
-            ],
+            ]
+            + (self._polar(x, scale) if self.polar else []),
             dim=1,
         )
         return (distance + (t / HORIZON_S) * scale * self.mlp(feats)[:, 0])[:, None]
+
+    @staticmethod
+    def _polar(x: torch.Tensor, scale: torch.Tensor) -> list[torch.Tensor]:
+        px, py = x[:, COL["px"]], x[:, COL["py"]]
+        rho = torch.sqrt(px * px + py * py + 1e-12)
+        return [px / rho, py / rho, rho / scale, torch.log(scale)]
 
 
 #: Instants of the calibration points: every 0.05 s, a grid that contains the engine's slices.
@@ -166,6 +176,81 @@ def teacher_dataset(engine, n_settings: int, per_setting: int, rng: np.random.Ge
     return rows.astype(np.float32), targets
 
 
+TEACHERS = {
+    "value": "FRTEngine.stencil_min of the runtime graph",
+    "occupancy": "distance to positions reached by rollouts of the true dynamics "
+    "(models.projection.occupancy_dataset)",
+}
+
+#: Far-field occupancy targets are clipped here: beyond a few metres only their sign matters.
+OCCUPANCY_CLIP_M = 20.0
+#: The local spacing of the reached positions, subtracted from the distance to the nearest one:
+#: that position's distance to its GAP_NEIGHBOURS-th nearest neighbour.
+GAP_NEIGHBOURS = 4
+
+
+def occupancy_dataset(
+    n_settings: int,
+    rng: np.random.Generator,
+    rollouts: int = 2048,
+    instants: int = 4,
+    queries: int = 64,
+    slice_dt: float = CALIBRATION_SLICE_DT,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(inputs, targets) for W from rollouts of the true dynamics instead of from V: the target at
+    (s, x, y) is the distance from (x, y) to the nearest of ``rollouts`` positions reached at
+    exactly s (the evaluation's schedules, half started on the initial set's edge), less the local
+    spacing of those positions (``GAP_NEIGHBOURS``), clipped at ``OCCUPANCY_CLIP_M``: negative
+    inside the sampled set, positive outside it.
+
+    Per setting and each of ``instants`` random instants, ``queries`` points: a third reached
+    positions (target 0), a third reached positions moved by log-uniform noise (0.05-6 m), a third
+    uniform in the outer box at s, which holds the notch behind a car that can turn round: inside
+    the convex outer polygon, never reached, and called reachable by the value network
+    (docs/model.md). This teacher is an inner reference, so the level calibrated afterwards on
+    fresh rollouts (``calibrated_levels``) is what makes the set contain what is reachable."""
+    from scipy.spatial import cKDTree
+
+    from models.outer_bound import outer_bound
+
+    steps = round(HORIZON_S / slice_dt)
+    rows, targets = [], []
+    third = queries // 3
+    for params in tqdm(sample_parameters(n_settings, rng), desc="occupancy", mininterval=5):
+        v_start, bounds = float(params[COL["v_start"]]), params[6:]
+        batch = np.repeat(params[None], rollouts, axis=0)
+        start = sample_initial_states(batch[:, COL["v_start"]], rng, on_boundary=EDGE_SHARE)
+        a1, a2, sw = sample_reference_schedules(rollouts, HORIZON_S, rng)
+        _, trace = rk4_rollout(
+            start, batch, np.full(rollouts, HORIZON_S), a1, a2, sw, steps, record=True
+        )
+        ob = outer_bound(v_start, bounds, support_directions=0)
+        for k in rng.choice(steps, size=instants, replace=False):
+            tau, (px, py, _, _) = trace[k]
+            s = float(tau[0])
+            reached = np.stack([px, py], axis=1)
+            tree = cKDTree(reached)
+            spacing = tree.query(reached, k=GAP_NEIGHBOURS + 1)[0][:, -1]
+            # Sparse places (thin tails of the set, its edge) as often as dense ones.
+            weight = spacing / spacing.sum() if spacing.sum() > 0 else None
+            pick = reached[rng.choice(rollouts, queries - 2 * third, p=weight)]
+            near = reached[rng.choice(rollouts, third, p=weight)]
+            near = near + rng.normal(0, 1, near.shape) * 10 ** rng.uniform(-1.3, 0.8, (third, 1))
+            x_lo, x_hi, y_lo, y_hi = ob.box_at[int(np.argmin(np.abs(ob.times - s)))]
+            box = np.stack([rng.uniform(x_lo, x_hi, third), rng.uniform(y_lo, y_hi, third)], axis=1)
+            xy = np.concatenate([pick, near, box])
+            distance, nearest = tree.query(xy)
+            # Less the spacing of the samples there: inside a large set 2 048 positions leave
+            # gaps of metres, which are reachable all the same.
+            distance = distance - spacing[nearest]
+            r = np.repeat(params[None], len(xy), axis=0)
+            r[:, COL["t"]] = s
+            r[:, COL["px"]], r[:, COL["py"]] = xy[:, 0], xy[:, 1]
+            rows.append(r)
+            targets.append(np.minimum(distance, OCCUPANCY_CLIP_M))
+    return np.concatenate(rows).astype(np.float32), np.concatenate(targets).astype(np.float32)
+
+
 def unreachable_xy(
     n_settings: int,
     per_setting: int,
@@ -224,6 +309,7 @@ def train_projection(
     over_weight: float = 4.0,
     lift: tuple[np.ndarray, np.ndarray] | None = None,
     lift_weight: float = 1.0,
+    polar: bool = False,
 ) -> ProjectionNetwork:
     """Regression with a heavier penalty where W over-estimates the teacher (the unsafe side).
 
@@ -231,7 +317,7 @@ def train_projection(
     there (a hinge, squared); the calibration on reachable points then decides the level, so the
     hinge can only move the set where it does not cost containment."""
     torch.manual_seed(seed)
-    net = ProjectionNetwork()
+    net = ProjectionNetwork(polar=polar)
     optimiser = torch.optim.Adam(net.parameters(), lr=2e-3)
     xt, yt = torch.as_tensor(x), torch.as_tensor(y)
     lift_x = lift_floor = None
@@ -284,16 +370,36 @@ def export_projection(net: ProjectionNetwork, path: Path) -> None:
     )
 
 
-def calibrated_levels(engine, reach: np.ndarray, w: np.ndarray) -> dict[str, Any]:
+#: Candidate slopes of the level per unit of set size (``box_scale``), for ``calibrated_levels``.
+LEVEL_SLOPES = tuple(np.round(np.arange(0.0, 0.2001, 0.005), 3))
+
+
+def affine_level(
+    w: np.ndarray, scale: np.ndarray, slopes: tuple[float, ...] = LEVEL_SLOPES
+) -> tuple[float, float]:
+    """(offset, slope) with ``w <= offset + slope * scale`` at every sample and the smallest mean
+    level over the samples, the slope taken from ``slopes``."""
+    offsets = np.array([float(np.max(w - slope * scale)) for slope in slopes])
+    mean_level = offsets + np.asarray(slopes) * float(np.mean(scale))
+    best = int(np.argmin(mean_level))
+    return float(offsets[best]), float(slopes[best])
+
+
+def calibrated_levels(
+    engine, reach: np.ndarray, w: np.ndarray, affine: bool = False
+) -> dict[str, Any]:
     """Levels of W from its values ``w`` at reachable rows ``reach`` (scenario optimisation).
 
-    ``delta``: the largest W seen, one level for every set. ``level_per_scale``: the largest
-    W / box_scale(outer box at the row's time), so the level grows with the set: the distilled
-    network's errors are metres on a 60 m set and centimetres on a 3 m one. Both are scalars fitted
-    to the maximum over N independent samples, so with confidence 1 - (1 - eps)^N a reachable point
-    drawn from the same distribution is inside with probability >= 1 - eps; a guarantee over the
-    sampling distribution, not per setting (a table per (time, size) cell was tried and
-    under-approximated one growing-bounds setting).
+    ``delta``: the largest W seen, one level for every set. The level the engine uses grows with
+    the set, ``level_offset_m + level_per_scale * box_scale(outer box at the instant)``: the
+    distilled network's errors are metres on a 60 m set and centimetres on a 3 m one. By default
+    (the shipped rule) the offset is 0 and the slope the largest W / scale seen. With ``affine``,
+    for each candidate slope in ``LEVEL_SLOPES`` the offset is the largest ``W - slope * scale``
+    seen, and the pair with the smallest mean level over the samples is kept (``affine_level``).
+    With N independent samples (and k candidates), a reachable point drawn from the same
+    distribution is inside with probability >= 1 - eps with confidence 1 - k (1 - eps)^N (a union
+    bound over the candidates); a guarantee over the sampling distribution, not per setting (a
+    table per (time, size) cell was tried and under-approximated one growing-bounds setting).
     """
     scale = np.empty(len(reach))
     for a, b in blocks(reach):
@@ -302,10 +408,13 @@ def calibrated_levels(engine, reach: np.ndarray, w: np.ndarray) -> dict[str, Any
         k = int(np.argmin(np.abs(ob.times - r[COL["t"]])))
         scale[a:b] = box_scale(ob.box_at[k])
     ratio = w / scale
+    offset, slope = affine_level(w, scale) if affine else (0.0, float(ratio.max()))
     return {
         "delta": float(w.max()),
-        "level_per_scale": float(ratio.max()),
+        "level_offset_m": offset,
+        "level_per_scale": slope,
         "level_scale": "models.outer_bound.box_scale of the outer box at the instant",
+        "level_candidates": len(LEVEL_SLOPES) if affine else 1,
         "calibration_samples": len(reach),
         "quantiles_at_reachable": {q: float(np.quantile(w, float(q))) for q in ("0.5", "0.99")},
         "ratio_quantiles_at_reachable": {
@@ -314,7 +423,9 @@ def calibrated_levels(engine, reach: np.ndarray, w: np.ndarray) -> dict[str, Any
     }
 
 
-def recalibrate(model_path: Path, n_settings: int, rng: np.random.Generator) -> None:
+def recalibrate(
+    model_path: Path, n_settings: int, rng: np.random.Generator, affine: bool = False
+) -> None:
     """Re-calibrate the shipped projection graph's levels in its card (no distillation)."""
     from service.engine import PROJECTION_SLICE_DT, FRTEngine
     from service.model_runtime import ValueModel
@@ -324,7 +435,7 @@ def recalibrate(model_path: Path, n_settings: int, rng: np.random.Generator) -> 
     reach = reachable_xy(n_settings, 64, CALIBRATION_SLICE_DT, rng).astype(np.float32)
     w = model.evaluate_projection(reach)
     card = json.loads(model_path.with_suffix(".json").read_text())
-    card["projection_graph"].update(calibrated_levels(engine, reach, w))
+    card["projection_graph"].update(calibrated_levels(engine, reach, w, affine))
     write_card(card, model_path)
     print(json.dumps(card["projection_graph"], indent=2))
 
@@ -338,6 +449,13 @@ def main() -> None:
     parser.add_argument("--settings", type=int, default=3000)
     parser.add_argument("--per-setting", type=int, default=64)
     parser.add_argument("--steps", type=int, default=6000)
+    parser.add_argument(
+        "--teacher",
+        choices=("value", "occupancy"),
+        default="value",
+        help="value: the full network's stencil minimum; occupancy: the distance to positions "
+        "rollouts of the true dynamics reach (occupancy_dataset)",
+    )
     parser.add_argument("--calibration-settings", type=int, default=12000)
     parser.add_argument("--seed", type=int, default=11)
     parser.add_argument(
@@ -353,6 +471,15 @@ def main() -> None:
         help="W's floor there per unit of set size (box_scale), above the calibrated level",
     )
     parser.add_argument("--lift-weight", type=float, default=1.0)
+    parser.add_argument("--polar", action="store_true", help="ProjectionNetwork(polar=True)")
+    parser.add_argument(
+        "--affine-level",
+        action="store_true",
+        help="calibrate an offset as well as the slope per unit of set size (affine_level)",
+    )
+    parser.add_argument(
+        "--over-weight", type=float, default=4.0, help="penalty factor where W is above the target"
+    )
     parser.add_argument(
         "--calibrate-only",
         action="store_true",
@@ -360,18 +487,35 @@ def main() -> None:
     )
     args = parser.parse_args()
     if args.calibrate_only:
-        recalibrate(args.model, args.calibration_settings, np.random.default_rng(args.seed + 1))
+        recalibrate(
+            args.model,
+            args.calibration_settings,
+            np.random.default_rng(args.seed + 1),
+            args.affine_level,
+        )
         return
     started = time.monotonic()
     rng = np.random.default_rng(args.seed)
     model = ValueModel.load(args.model, threads=2)
     engine = FRTEngine(model, projection=False, slice_dt=PROJECTION_SLICE_DT)
-    x, y = teacher_dataset(engine, args.settings, args.per_setting, rng)
+    if args.teacher == "occupancy":
+        x, y = occupancy_dataset(args.settings, rng)
+    else:
+        x, y = teacher_dataset(engine, args.settings, args.per_setting, rng)
     lift = None
     if args.lift_settings:
         rows, scale = unreachable_xy(args.lift_settings, 256, CALIBRATION_SLICE_DT, rng)
         lift = (rows, (args.lift_floor * scale).astype(np.float32))
-    net = train_projection(x, y, args.steps, args.seed, lift=lift, lift_weight=args.lift_weight)
+    net = train_projection(
+        x,
+        y,
+        args.steps,
+        args.seed,
+        over_weight=args.over_weight,
+        lift=lift,
+        lift_weight=args.lift_weight,
+        polar=args.polar,
+    )
     # Calibrate the level on fresh reachable points of the true dynamics (scenario optimisation).
     # One level for all settings: a table per (time, size) cell was tried and under-approximated a
     # growing-bounds setting (its guarantee is over the sampling distribution, not per setting).
@@ -379,7 +523,7 @@ def main() -> None:
     reach = reach.astype(np.float32)
     with torch.no_grad():
         w = net(torch.as_tensor(reach)).numpy()[:, 0]
-    levels = calibrated_levels(engine, reach, w)
+    levels = calibrated_levels(engine, reach, w, args.affine_level)
     path = args.model.with_name(args.model.stem + ".projection.onnx")
     export_projection(net, path)
     card = json.loads(args.model.with_suffix(".json").read_text())
@@ -387,8 +531,14 @@ def main() -> None:
         "file": path.name,
         "sha256": file_sha256(path),
         **levels,
-        "teacher": "FRTEngine.stencil_min of the runtime graph",
-        "architecture": {"width": net.width, "depth": net.depth, "activation": "SiLU"},
+        "teacher": TEACHERS[args.teacher],
+        "architecture": {
+            "width": net.width,
+            "depth": net.depth,
+            "activation": "SiLU",
+            "polar_features": net.polar,
+        },
+        "over_weight": args.over_weight,
         "distillation_samples": len(x),
         "lifted_unreachable_positions": 0 if lift is None else len(lift[0]),
         "lift_floor_per_scale": args.lift_floor if lift is not None else None,

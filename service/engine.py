@@ -635,13 +635,16 @@ class FRTEngine:
         self.outer_steps = (self.n_slices - 1) * self.outer_steps_per_slice
         stencil = self.card.raw.get("projection") or {}
         self.level = float(stencil.get("delta", self.card.delta))
-        #: If set, the level at an instant is this times the outer box's scale (``box_scale``).
+        #: If set, the level at an instant is ``level_offset_m`` plus this times the outer box's
+        #: scale (``box_scale``).
         self.level_per_scale: float | None = None
+        self.level_offset_m = 0.0
         if self.use_projection:
             listed = self.card.raw["projection_graph"]
             self.level = float(listed["delta"])
             if listed.get("level_per_scale") is not None:
                 self.level_per_scale = float(listed["level_per_scale"])
+                self.level_offset_m = float(listed.get("level_offset_m", 0.0))
         self.max_nodes = max_nodes or 6000
         self.radius_m = float(self.card.initial_set.get("radius_m", 0.5))
 
@@ -885,7 +888,7 @@ class FRTEngine:
         """The calibrated level of W (or V) at each instant ``ob.times[rows]``."""
         if self.level_per_scale is None:
             return np.full(len(rows), self.level)
-        return self.level_per_scale * box_scale(ob.box_at[rows])
+        return self.level_offset_m + self.level_per_scale * box_scale(ob.box_at[rows])
 
     def _values_inside(
         self,

@@ -402,6 +402,9 @@ def main() -> None:
                 results["http_floor_get_healthz"] = bench_http_floor(client, args.checks)
                 results.update(bench_observe_to_ready(client, args.observations))
                 results["contours_tube_plus_3_slices"] = bench_contours(client, args.observations)
+                # The planner checks every known agent: the sustained case's 50 and no others.
+                for agent in ("bench-cc", "bench-obs", "bench-obs1", "bench-frt"):
+                    client.delete(f"/v1/agents/{agent}").raise_for_status()
         before = server_deadline_misses(url)
         sources_before = agent_answer_sources(url)
         results["sustained_50_agents"] = asyncio.run(

@@ -61,8 +61,9 @@ def coarse_nodes(inside: np.ndarray, k0: np.ndarray, i0: np.ndarray) -> np.ndarr
 
 def steepest_coarse_slope(excess: np.ndarray, step: float) -> float:
     """Largest |change of W| per metre between coarse nodes two steps apart (nan if none)."""
-    along_x = np.abs(excess[:, :, 2:] - excess[:, :, :-2])
-    along_y = np.abs(excess[:, 2:, :] - excess[:, :-2, :])
+    with np.errstate(invalid="ignore"):  # inf - inf between two far nodes: nan, dropped below
+        along_x = np.abs(excess[:, :, 2:] - excess[:, :, :-2])
+        along_y = np.abs(excess[:, 2:, :] - excess[:, :-2, :])
     finite = [a[np.isfinite(a)] for a in (along_x, along_y)]
     if not any(len(a) for a in finite):
         return math.nan

@@ -54,7 +54,6 @@ from frt_client.models import (
 )
 from frt_client.retry import NO_RETRY, RetryPolicy
 from frt_client.stream import Stream
-from frt_client.timing import TripTimes
 
 __version__ = "0.1.0"
 
@@ -95,7 +94,6 @@ __all__ = [
     "ServerError",
     "Stream",
     "TrajectoryPoint",
-    "TripTimes",
     "UnavailableError",
     "ValidationError",
 ]

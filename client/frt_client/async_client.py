@@ -17,7 +17,6 @@ from frt_client.errors import DeadlineError, UnavailableError
 from frt_client.models import Health, ModelCard, Readiness, Response
 from frt_client.operations import AsyncOperations
 from frt_client.retry import RetryPolicy, note
-from frt_client.timing import TripTimes
 
 T = TypeVar("T", bound=Response)
 
@@ -43,8 +42,6 @@ class AsyncFRTClient(AsyncOperations):
         self.token = token
         self.timeout = wire.timeout(timeout)
         self.retry = retry if retry is not None else RetryPolicy()
-        #: What each request's trip cost beyond the service's own time (``deadline_for``).
-        self.trips = TripTimes()
         self._http = httpx.AsyncClient(
             base_url=self.base_url,
             timeout=self.timeout,
@@ -74,11 +71,9 @@ class AsyncFRTClient(AsyncOperations):
         attempt = 0
         while True:
             try:
-                sent = time.perf_counter()
                 response = await self._http.request(
                     call.method, call.path, json=call.json, params=call.params
                 )
-                self.trips.record(time.perf_counter() - sent, response)
             except httpx.TransportError as exc:
                 delay = self.retry.delay(attempt, idempotent=call.idempotent, error=exc)
                 if delay is None:

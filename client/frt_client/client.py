@@ -15,7 +15,6 @@ from frt_client.models import Health, ModelCard, Readiness, Response
 from frt_client.operations import Operations
 from frt_client.retry import RetryPolicy, note
 from frt_client.stream import Stream
-from frt_client.timing import TripTimes
 
 T = TypeVar("T", bound=Response)
 
@@ -55,8 +54,6 @@ class FRTClient(Operations):
         self.token = token
         self.timeout = wire.timeout(timeout)
         self.retry = retry if retry is not None else RetryPolicy()
-        #: What each request's trip cost beyond the service's own time (``deadline_for``).
-        self.trips = TripTimes()
         self._http = httpx.Client(
             base_url=self.base_url,
             timeout=self.timeout,
@@ -86,11 +83,9 @@ class FRTClient(Operations):
         attempt = 0
         while True:
             try:
-                sent = time.perf_counter()
                 response = self._http.request(
                     call.method, call.path, json=call.json, params=call.params
                 )
-                self.trips.record(time.perf_counter() - sent, response)
             except httpx.TransportError as exc:
                 delay = self.retry.delay(attempt, idempotent=call.idempotent, error=exc)
                 if delay is None:

@@ -163,6 +163,10 @@ class OuterBound:
         """sweep_polygon(k) for every sweep, computed together."""
         return half_plane_polygons(self.directions, self.sweep_support)
 
+    def nearest_row(self, t: float) -> int:
+        """Index k of the instant ``times[k]`` nearest to t (of ``box_at``, ``support_at``, ...)."""
+        return int(np.argmin(np.abs(self.times - t)))
+
     def slice_index(self, t: float) -> int:
         """Index k of the sub-interval [times[k], times[k+1]] that contains t (clipped)."""
         k = int(np.searchsorted(self.times, t, side="right")) - 1

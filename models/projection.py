@@ -204,7 +204,8 @@ def occupancy_dataset(
     inside the sampled set, positive outside it.
 
     Per setting and each of ``instants`` random instants, ``queries`` points: a third reached
-    positions (target 0), a third reached positions moved by log-uniform noise (0.05-6 m), a third
+    positions (target minus their spacing), drawn in proportion to it so that sparse places count
+    as much as dense ones, a third reached positions moved by log-uniform noise (0.05-6 m), a third
     uniform in the outer box at s, which holds the notch behind a car that can turn round: inside
     the convex outer polygon, never reached, and called reachable by the value network
     (docs/model.md). This teacher is an inner reference, so the level calibrated afterwards on
@@ -236,7 +237,7 @@ def occupancy_dataset(
             pick = reached[rng.choice(rollouts, queries - 2 * third, p=weight)]
             near = reached[rng.choice(rollouts, third, p=weight)]
             near = near + rng.normal(0, 1, near.shape) * 10 ** rng.uniform(-1.3, 0.8, (third, 1))
-            x_lo, x_hi, y_lo, y_hi = ob.box_at[int(np.argmin(np.abs(ob.times - s)))]
+            x_lo, x_hi, y_lo, y_hi = ob.box_at[ob.nearest_row(s)]
             box = np.stack([rng.uniform(x_lo, x_hi, third), rng.uniform(y_lo, y_hi, third)], axis=1)
             xy = np.concatenate([pick, near, box])
             distance, nearest = tree.query(xy)
@@ -277,7 +278,7 @@ def unreachable_xy(
         v_start, bounds = float(params[COL["v_start"]]), params[6:]
         t = float(rng.choice(late))
         ob = outer_bound(v_start, bounds)
-        k = int(np.argmin(np.abs(ob.times - t)))
+        k = ob.nearest_row(t)
         x_lo, x_hi, y_lo, y_hi = ob.box_at[k]
         xy = np.stack(
             [rng.uniform(x_lo, x_hi, per_setting), rng.uniform(y_lo, y_hi, per_setting)], axis=1
@@ -374,6 +375,17 @@ def export_projection(net: ProjectionNetwork, path: Path) -> None:
 LEVEL_SLOPES = tuple(np.round(np.arange(0.0, 0.2001, 0.005), 3))
 
 
+def set_scales(engine, reach: np.ndarray) -> np.ndarray:
+    """``box_scale`` of the outer box at each row's instant (rows in blocks of one setting and
+    instant, as ``reachable_xy`` gives them)."""
+    scale = np.empty(len(reach))
+    for a, b in blocks(reach):
+        r = reach[a]
+        ob = engine.outer(float(r[COL["v_start"]]), r[6:])
+        scale[a:b] = box_scale(ob.box_at[ob.nearest_row(float(r[COL["t"]]))])
+    return scale
+
+
 def affine_level(
     w: np.ndarray, scale: np.ndarray, slopes: tuple[float, ...] = LEVEL_SLOPES
 ) -> tuple[float, float]:
@@ -401,12 +413,7 @@ def calibrated_levels(
     bound over the candidates); a guarantee over the sampling distribution, not per setting (a
     table per (time, size) cell was tried and under-approximated one growing-bounds setting).
     """
-    scale = np.empty(len(reach))
-    for a, b in blocks(reach):
-        r = reach[a]
-        ob = engine.outer(float(r[COL["v_start"]]), r[6:])
-        k = int(np.argmin(np.abs(ob.times - r[COL["t"]])))
-        scale[a:b] = box_scale(ob.box_at[k])
+    scale = set_scales(engine, reach)
     ratio = w / scale
     offset, slope = affine_level(w, scale) if affine else (0.0, float(ratio.max()))
     return {

@@ -84,7 +84,7 @@ def main() -> None:
         roll = simulate(setting.v_start, bounds, 32768, np.random.default_rng(0))
         reached = roll.states[int(np.argmin(np.abs(roll.times - t))), :, :2]
         ob = outer_bound(setting.v_start, bounds)
-        row = int(np.argmin(np.abs(ob.times - t)))
+        row = ob.nearest_row(t)
         x_lo, x_hi, y_lo, y_hi = ob.box_at[row]
         gx, gy = np.meshgrid(np.arange(x_lo, x_hi, 1.0), np.arange(y_lo, y_hi, 1.0))
         xy = np.stack([gx.ravel(), gy.ravel()], axis=1)

@@ -69,7 +69,7 @@ def diagnose(
     roll = simulate(setting.v_start, bounds, rollouts, rng)
     reached = roll.states[int(np.argmin(np.abs(roll.times - t))), :, :2]
     ob = engine.outer(setting.v_start, bounds)
-    row = int(np.argmin(np.abs(ob.times - t)))
+    row = ob.nearest_row(t)
     polygon = shapely.Polygon(ob.polygons_at([row])[0])
     x_lo, x_hi, y_lo, y_hi = ob.box_at[row]
     gx, gy = np.meshgrid(np.arange(x_lo, x_hi, 0.5), np.arange(y_lo, y_hi, 0.5))

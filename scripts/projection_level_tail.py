@@ -21,8 +21,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from models.contract import COL  # noqa: E402
-from models.outer_bound import box_scale  # noqa: E402
-from models.projection import CALIBRATION_SLICE_DT, blocks, reachable_xy  # noqa: E402
+from models.projection import CALIBRATION_SLICE_DT, reachable_xy, set_scales  # noqa: E402
 from service.engine import PROJECTION_SLICE_DT, FRTEngine  # noqa: E402
 from service.model_runtime import ValueModel  # noqa: E402
 
@@ -40,11 +39,7 @@ def main() -> None:
     rng = np.random.default_rng(args.seed + 1)  # the generator --calibrate-only draws from
     reach = reachable_xy(args.settings, 64, CALIBRATION_SLICE_DT, rng).astype(np.float32)
     w = model.evaluate_projection(reach)
-    scale = np.empty(len(reach))
-    for a, b in blocks(reach):
-        r = reach[a]
-        ob = engine.outer(float(r[COL["v_start"]]), r[6:])
-        scale[a:b] = box_scale(ob.box_at[int(np.argmin(np.abs(ob.times - r[COL["t"]])))])
+    scale = set_scales(engine, reach)
     ratio = w / scale
     card = float(model.card.raw["projection_graph"]["level_per_scale"])
     quantiles = {q: float(np.quantile(ratio, float(q))) for q in ("0.999", "0.9999", "0.99999")}

@@ -742,7 +742,7 @@ class FRTEngine:
         covers the arc's length in time s at constant acceleration, both clipped to the exact
         heading and speed intervals at s. Returns the minima and the number of evaluations.
         """
-        k = int(np.argmin(np.abs(ob.times - s)))
+        k = ob.nearest_row(s)
         th_lo, th_hi = ob.heading[k]
         v_lo, v_hi = ob.speed[k]
         guess = np.clip(2.0 * np.arctan2(py, px), th_lo, th_hi)

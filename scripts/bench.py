@@ -305,24 +305,19 @@ async def bench_sustained(url: str, agents: int, seconds: float, headers: dict) 
     }
 
 
-def agent_answer_sources(url: str) -> dict[str, int]:
-    """Per-agent collision answers so far by the set they came from (``exact``, ``conservative``),
-    from ``/metrics``."""
-    sources = {}
-    for line in httpx.get(f"{url}/metrics", timeout=10).text.splitlines():
-        if line.startswith("frt_collision_checks_total{"):
-            source = line.split('source="')[1].split('"')[0]
-            sources[source] = int(float(line.split()[-1]))
-    return sources
-
-
-def server_deadline_misses(url: str) -> int:
-    """Collision checks the server itself answered after their deadline (from its arrival), from
-    ``/metrics``: the end-to-end count adds the trip and the client's own delays."""
+def server_counters(url: str) -> dict[str, int]:
+    """The server's counts so far, from one read of ``/metrics``: ``deadline_misses`` (collision
+    checks it answered after their deadline, from their arrival: the end-to-end count adds the trip
+    and the client's own delays) and, per set the per-agent answers came from, ``exact`` and
+    ``conservative``."""
+    counts = {"deadline_misses": -1}
     for line in httpx.get(f"{url}/metrics", timeout=10).text.splitlines():
         if line.startswith("frt_deadline_misses_total"):
-            return int(float(line.split()[-1]))
-    return -1
+            counts["deadline_misses"] = int(float(line.split()[-1]))
+        elif line.startswith("frt_collision_checks_total{"):
+            source = line.split('source="')[1].split('"')[0]
+            counts[source] = int(float(line.split()[-1]))
+    return counts
 
 
 def bench_naive(model: Path, n: int) -> dict:
@@ -405,16 +400,17 @@ def main() -> None:
                 # The planner checks every known agent: the sustained case's 50 and no others.
                 for agent in ("bench-cc", "bench-obs", "bench-obs1", "bench-frt"):
                     client.delete(f"/v1/agents/{agent}").raise_for_status()
-        before = server_deadline_misses(url)
-        sources_before = agent_answer_sources(url)
+        before = server_counters(url)
         results["sustained_50_agents"] = asyncio.run(
             bench_sustained(url, 50, args.sustained_seconds, {})
         )
+        after = server_counters(url)
         sustained = results["sustained_50_agents"]
-        sustained["deadline_misses_server_side"] = server_deadline_misses(url) - before
+        sustained["deadline_misses_server_side"] = after.pop("deadline_misses") - before.pop(
+            "deadline_misses"
+        )
         sustained["agent_answers"] = {
-            source: count - sources_before.get(source, 0)
-            for source, count in agent_answer_sources(url).items()
+            source: count - before.get(source, 0) for source, count in after.items()
         }
     if not args.sustained_only:
         results.update(bench_exact_in_process(args.model.resolve(), args.observations))

@@ -18,6 +18,9 @@ it with httpx from this process. Prints medians and p99 for:
    costs with no work in the route), next to the warm check;
 6. the exact set alone, in-process, for a moving and for a parked car (for the moving car also with
    the projection network evaluated at every lattice node, i.e. without ``service.refine``);
+7. serialising a 50-agent collision answer in-process, the way the service does
+   (``service.routes.model_json``) and the way FastAPI does for a returned model (validated again
+   against ``response_model``, then ``jsonable_encoder`` and ``json.dumps``), alternately;
 
 and, side by side in the same run, the naive approach: building the set by evaluating the full
 network on a dense grid for every query (no cache, no distilled projection).
@@ -347,6 +350,71 @@ EXACT_CASES = {
 }
 
 
+def fifty_agent_answer():
+    """A 50-agent answer to a 20-point check, as the service builds it (``model_construct``)."""
+    from service.schemas import CollisionCheckResponse, MultiCollisionCheckResponse
+
+    rng = np.random.default_rng(0)
+    results = [
+        CollisionCheckResponse.model_construct(
+            collision=False,
+            first_collision_index=None,
+            first_collision_time=None,
+            clearance=rng.uniform(0.0, 80.0, 20).tolist(),
+            agent_id=f"agent-{i}",
+            mode="tube",
+            collision_radius=1.5,
+            beta=float(rng.uniform()),
+            frt_version=3,
+            conservative=False,
+            horizon_end=1003.0,
+        )
+        for i in range(50)
+    ]
+    return MultiCollisionCheckResponse.model_construct(
+        collision=False, conservative=False, results=results, missing=[]
+    )
+
+
+def bench_serialisation(n: int) -> dict[str, dict]:
+    """Body bytes of a 50-agent answer: the service's ModelJSONResponse against FastAPI's path for
+    a returned model, alternately, with a check that both give the same JSON."""
+    from fastapi.routing import serialize_response
+    from fastapi.utils import create_model_field
+    from starlette.responses import JSONResponse
+
+    from service.routes.model_json import ModelJSONResponse
+    from service.schemas import MultiCollisionCheckResponse
+
+    answer = fifty_agent_answer()
+    field = create_model_field(
+        name="response", type_=MultiCollisionCheckResponse, mode="serialization"
+    )
+
+    async def fastapi_body() -> bytes:
+        content = await serialize_response(field=field, response_content=answer, is_coroutine=True)
+        return JSONResponse(content).body
+
+    async def run() -> dict[str, list[float]]:
+        times: dict[str, list[float]] = {"fastapi": [], "model_json": []}
+        if json.loads(await fastapi_body()) != json.loads(ModelJSONResponse(answer).body):
+            raise SystemExit("serialise_50_agents: the two paths give different JSON")
+        for _ in range(n):
+            t0 = time.perf_counter()
+            await fastapi_body()
+            times["fastapi"].append(time.perf_counter() - t0)
+            t0 = time.perf_counter()
+            ModelJSONResponse(answer)
+            times["model_json"].append(time.perf_counter() - t0)
+        return times
+
+    times = asyncio.run(run())
+    return {
+        "serialise_50_agents_model_json": stats(times["model_json"]),
+        "serialise_50_agents_fastapi_default": stats(times["fastapi"]),
+    }
+
+
 def bench_exact_in_process(model: Path, n: int) -> dict[str, dict]:
     """FRTEngine.exact alone (no HTTP, no queue): what an observation costs the worker."""
     from service.engine import FRTEngine, Pose
@@ -414,6 +482,7 @@ def main() -> None:
         }
     if not args.sustained_only:
         results.update(bench_exact_in_process(args.model.resolve(), args.observations))
+        results.update(bench_serialisation(args.checks))
         results["naive_dense_grid_per_query"] = bench_naive(args.model.resolve(), args.naive)
         warm = results["collision_check_20pt_warm"]["p50_ms"]
         naive = results["naive_dense_grid_per_query"]["p50_ms"]

@@ -6,6 +6,7 @@ from fastapi import APIRouter, Request
 
 from service import checks
 from service.middleware import arrival_time
+from service.routes.model_json import ModelJSONResponse
 from service.routes.params import AgentIdPath, ServicesDep
 from service.schemas import (
     CollisionCheckRequest,
@@ -20,15 +21,17 @@ router = APIRouter(prefix="/v1", tags=["collision"])
 @router.post("/agents/{agent_id}/collision-check", response_model=CollisionCheckResponse)
 async def check_agent(
     agent_id: AgentIdPath, body: CollisionCheckRequest, request: Request, services: ServicesDep
-) -> CollisionCheckResponse:
+) -> ModelJSONResponse:
     """Is the trajectory inside C = K ⊕ R_col? Answers within ``deadline_ms``, conservatively if
     the exact set is not ready."""
-    return await checks.check_agent(services, agent_id, body, arrival_time(request.scope))
+    answer = await checks.check_agent(services, agent_id, body, arrival_time(request.scope))
+    return ModelJSONResponse(answer)
 
 
 @router.post("/collision-check", response_model=MultiCollisionCheckResponse)
 async def check_many(
     body: MultiCollisionCheckRequest, request: Request, services: ServicesDep
-) -> MultiCollisionCheckResponse:
+) -> ModelJSONResponse:
     """The same check against several agents (``agent_ids``) or all of them (``null``)."""
-    return await checks.check_agents_at_once(services, body, arrival_time(request.scope))
+    answer = await checks.check_agents_at_once(services, body, arrival_time(request.scope))
+    return ModelJSONResponse(answer)

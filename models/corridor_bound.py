@@ -110,11 +110,16 @@ class _Corridors:
         theta_f: tuple[np.ndarray, np.ndarray],
         speed_f: tuple[np.ndarray, np.ndarray],
         initial_set: InitialSet,
+        coupled_speed: bool = False,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Support values [N, M] in ``DIRECTIONS`` of a convex polygon that contains every position
         at time t of a trajectory from {l <= c} [N] whose final (unwrapped) heading lies in
         ``theta_f`` = (lo, hi) [N] and final speed in ``speed_f`` = (lo, hi) [N]; and [N] True where
-        no such trajectory exists (the corridors are empty somewhere)."""
+        no such trajectory exists (the corridors are empty somewhere).
+
+        ``coupled_speed``: the speed along the corridor is a profile with bounded rates
+        (``models.speed_lp``, a linear programme per row and direction, ~1 ms each) instead of
+        taking either end of its interval at every instant independently."""
         m = initial_set
         grow = 1.0 + c / m.radius_m
         eps_th = (m.heading_margin_rad * grow)[:, None]
@@ -136,6 +141,27 @@ class _Corridors:
         back_lo_nodes = speed_f[0][:, None] - self.gain_after
         back_hi_nodes = speed_f[1][:, None] - self.brake_after
         empty |= np.any((v_lo_f > back_hi_nodes + 1e-9) | (back_lo_nodes > v_hi_f + 1e-9), axis=1)
+        th_hi = np.maximum(th_hi, th_lo)
+        c_hi = cos_max_towards(th_lo, th_hi, DIRECTIONS)
+
+        if coupled_speed:
+            from models.speed_lp import coupled_gain
+
+            gain = np.full((self.n, len(DIRECTIONS)), -np.inf)
+            live = np.flatnonzero(~empty)
+            node_lo = np.maximum(v_lo_f, back_lo_nodes)
+            node_hi = np.minimum(v_hi_f, back_hi_nodes)
+            gain[live], lp_empty = coupled_gain(
+                c_hi[live],
+                self.h[live],
+                node_lo[live] - 1e-9,
+                node_hi[live] + 1e-9,
+                self.step_lo[live],
+                self.step_hi[live],
+            )
+            empty[live] |= lp_empty
+            return m.radius_m + c[:, None] + gain, empty
+
         sp_lo = np.maximum(
             np.maximum(_hull(v_lo_f, 0.0, upper=False), _hull(back_lo_nodes, 0.0, upper=False)),
             0.0,
@@ -144,9 +170,6 @@ class _Corridors:
             _hull(v_hi_f, 0.0, upper=True), _hull(back_hi_nodes, self.pad_u2_lo, upper=True)
         )
         sp_hi = np.maximum(sp_hi, sp_lo)  # an empty sub-interval is caught at the nodes above
-        th_hi = np.maximum(th_hi, th_lo)
-
-        c_hi = cos_max_towards(th_lo, th_hi, DIRECTIONS)
         rate = np.where(c_hi >= 0, sp_hi[:, :, None] * c_hi, sp_lo[:, :, None] * c_hi)
         support = m.radius_m + c[:, None] + rate.sum(axis=1) * self.h[:, None]  # [N, M]
         return support, empty
@@ -288,6 +311,7 @@ def partition_supports(
     steps: int = 24,
     horizon: float = HORIZON_S,
     initial_set: InitialSet = INITIAL_SET,
+    coupled_speed: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Outer polygons of the positions reachable at exactly each of ``times`` [J], one per final
     heading x final speed bin: supports [J, B, M] in ``DIRECTIONS`` (B = heading_bins x
@@ -296,6 +320,8 @@ def partition_supports(
     The bins split the forward intervals of the final (unwrapped) heading and speed, which every
     trajectory's final values lie in, so the union of a time's polygons contains every position
     reachable then; unlike one convex polygon, it has the notch behind a car that can turn round.
+    ``coupled_speed``: see ``_Corridors.supports`` (offline: a linear programme per bin and
+    direction).
     """
     times = np.asarray(times, dtype=float)
     n_bins = heading_bins * speed_bins
@@ -317,7 +343,11 @@ def partition_supports(
     theta = th_lo[:, None] + (th_hi - th_lo)[:, None] * h_edges / heading_bins
     speed = sp_lo[:, None] + (sp_hi - sp_lo)[:, None] * s_edges / speed_bins
     support, empty = corridors.supports(
-        np.zeros(len(x)), (theta[:, 0], theta[:, 1]), (speed[:, 0], speed[:, 1]), initial_set
+        np.zeros(len(x)),
+        (theta[:, 0], theta[:, 1]),
+        (speed[:, 0], speed[:, 1]),
+        initial_set,
+        coupled_speed=coupled_speed,
     )
     return (
         support.reshape(len(times), n_bins, len(DIRECTIONS)),

@@ -100,6 +100,52 @@ def test_partition_polygons_hold_every_simulated_position(seed: int) -> None:
             assert inside.any(axis=1).all(), (v_start, bounds, times[j])
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_speed_coupled_polygons_hold_every_simulated_position(seed: int) -> None:
+    """With the speed coupled over time (models.speed_lp: one linear programme per bin and
+    direction), the union of a time's bin polygons still contains the position of every trajectory
+    at that time: wide, shrinking, forced braking (u2 < 0 throughout), forced acceleration late
+    (u2 > 0 at the end) and random settings; switching and extremal schedules, edge starts."""
+    from models.corridor_bound import DIRECTIONS, partition_supports
+
+    rng = np.random.default_rng(seed)
+    named = {s.name: s for s in SETTINGS}
+    names = (
+        ("urban_wide", "braking_hard", "stop_sign_runner"),
+        ("shrinking_wide_to_narrow", "braking_to_stop", "u_turn_like"),
+    )[seed]
+    settings = [(named[name].v_start, named[name].bounds()) for name in names]
+    settings += [(float(p[COL["v_start"]]), p[6:]) for p in sample_parameters(2, rng)]
+    schedules = (sample_control_schedules, sample_reference_schedules)[seed]
+    normals = np.stack([np.cos(DIRECTIONS), np.sin(DIRECTIONS)])
+    for v_start, bounds in settings:
+        _, trace = simulate(v_start, bounds, 2000, rng, schedules)
+        picked = trace[44::50]
+        times = np.array([float(tau[0]) for tau, _ in picked])
+        support, empty = partition_supports(v_start, bounds, times, 8, 2, coupled_speed=True)
+        for j, (_, state) in enumerate(picked):
+            reach = np.stack([state[0], state[1]], axis=1) @ normals  # [n, M]
+            inside = np.all(reach[:, None, :] <= support[j][None] + 1e-9, axis=2) & ~empty[j]
+            assert inside.any(axis=1).all(), (v_start, bounds, times[j])
+
+
+def test_coupling_the_speed_cuts_where_independent_speed_ends_do_not() -> None:
+    """urban_wide at t = 3 s, 14 m behind and 4 m beside the start: inside a 16 x 6 heading x
+    speed bin polygon with the speed's ends taken independently at every instant, outside all 16
+    heading bin polygons with the speed coupled (to be fast while heading backwards the car must
+    have kept its speed while it headed forwards, and moved forwards)."""
+    from models.corridor_bound import DIRECTIONS, partition_supports
+
+    setting = {s.name: s for s in SETTINGS}["urban_wide"]
+    point = np.array([-14.0, 4.0]) @ np.stack([np.cos(DIRECTIONS), np.sin(DIRECTIONS)])
+    loose, loose_empty = partition_supports(setting.v_start, setting.bounds(), [HORIZON_S], 16, 6)
+    assert (np.all(point[None, :] <= loose[0], axis=1) & ~loose_empty[0]).any()
+    tight, tight_empty = partition_supports(
+        setting.v_start, setting.bounds(), [HORIZON_S], 16, 1, coupled_speed=True
+    )
+    assert not (np.all(point[None, :] <= tight[0], axis=1) & ~tight_empty[0]).any()
+
+
 def test_partition_polygons_cut_into_the_notch_the_convex_polygon_covers() -> None:
     """urban_wide at t = 3 s: 20 m behind the start is inside the convex outer polygon and outside
     every one of 16 x 6 heading x speed bin polygons."""

@@ -1,10 +1,12 @@
 """What a sound heading x speed partition of the outer bound would cut from the served tube.
 
-``python scripts/partition_bound.py`` (~2 min): for the evaluation settings whose tubes reach far
-beyond the rollout cells (the notch behind a car that can turn round), the served tube (the
+``python scripts/partition_bound.py`` (~6 min): for the evaluation settings whose tubes reach more
+than 1.5 m beyond the rollout cells (the notch behind a car that can turn round), the served tube (the
 engine's, as `make evaluate` measures it) is cut to the union over instants 0.1 s apart of the
 partition polygons of ``models.corridor_bound.partition_supports`` (one convex polygon per final
-heading x final speed bin, each grown by how far a car moves in half an instant), and both are
+heading x final speed bin, each grown by how far a car moves in half an instant; a bin count
+ending in ``c``, e.g. ``16x1c``, couples the speed over time by a linear programme per bin and
+direction, ``models.speed_lp``), and both are
 compared with the rollout cells as in ``models.evaluate`` (recall, IoU, "beyond" p95). It also
 times the partition per set: whether the cut could run online.
 
@@ -28,6 +30,7 @@ from tqdm import tqdm
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from models.contract import INITIAL_SET  # noqa: E402
 from models.corridor_bound import DIRECTIONS, partition_supports  # noqa: E402
 from models.eval_settings import SETTINGS  # noqa: E402
 from models.evaluate import compare_cells, model_cells, simulate, swept_cells  # noqa: E402
@@ -36,42 +39,71 @@ from service.engine import FRTEngine, Pose  # noqa: E402
 from service.model_runtime import ValueModel  # noqa: E402
 
 NAMES = (
+    "stationary_wide_limits",
     "urban_wide",
-    "shrinking_wide_to_narrow",
-    "low_confidence_urban",
     "fast_wide_limits",
+    "shrinking_wide_to_narrow",
+    "shrinking_steering_only",
     "growing_narrow_to_wide",
+    "u_turn_like",
+    "low_confidence_urban",
 )
 TIMES = (2.0, 3.0)
 INSTANT_S = 0.1
 
 
-def partition_tube(
-    v_start: float, bounds: np.ndarray, t: float, bins: tuple[int, int], speed_max: float
-) -> tuple[shapely.Geometry, float]:
-    """The union over instants up to t of the bin polygons, each grown by speed_max * dt / 2
-    (plus the initial disc), and the seconds the partition took."""
-    times = np.arange(1, round(t / INSTANT_S) + 1) * INSTANT_S
+def partition_instants(
+    v_start: float,
+    bounds: np.ndarray,
+    t_end: float,
+    bins: tuple[int, int, bool],
+    speed_max: float,
+    steps: int,
+) -> tuple[list[shapely.Geometry], float]:
+    """For each instant 0.1 s apart up to t_end, the union of its bin polygons grown by
+    speed_max * dt / 2 (so the instants' union holds every time between them), the initial disc
+    first; and the seconds the partition took."""
+    heading_bins, speed_bins, coupled = bins
+    times = np.arange(1, round(t_end / INSTANT_S) + 1) * INSTANT_S
     started = time.perf_counter()
-    support, empty = partition_supports(v_start, bounds, times, *bins)
-    parts = [shapely.Point(0.0, 0.0).buffer(0.6)]
+    support, empty = partition_supports(
+        v_start, bounds, times, heading_bins, speed_bins, steps=steps, coupled_speed=coupled
+    )
+    grow = speed_max * INSTANT_S / 2 + 0.05
+    parts = [shapely.Point(0.0, 0.0).buffer(INITIAL_SET.radius_m + grow)]  # times up to dt / 2
     for j in range(len(times)):
         polygons = half_plane_polygons(DIRECTIONS, support[j][~empty[j]])
         union = shapely.union_all([shapely.Polygon(p) for p in polygons])
-        parts.append(union.buffer(speed_max * INSTANT_S / 2 + 0.05))
-    tube = shapely.union_all(parts)
-    return tube, time.perf_counter() - started
+        parts.append(union.buffer(grow))
+    return parts, time.perf_counter() - started
+
+
+def bin_label(bins: tuple[int, int, bool]) -> str:
+    return f"{bins[0]}x{bins[1]}{'c' if bins[2] else ''}"
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--model", type=Path, default=ROOT / "models" / "frt_unicycle.onnx")
     parser.add_argument("--rollouts", type=int, default=16384)
-    parser.add_argument("--bins", default="16x1,16x6", help="heading x speed bin counts")
+    parser.add_argument(
+        "--bins",
+        default="16x6,16x1c",
+        help="heading x speed bin counts; a trailing c couples the speed over time",
+    )
+    parser.add_argument(
+        "--steps", type=int, default=24, help="sub-intervals of [0, t] for the corridors"
+    )
+    parser.add_argument(
+        "--coupled-steps", type=int, default=60, help="the same with the speed coupled"
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "partition_bound.json")
     args = parser.parse_args()
-    bin_sets = [tuple(int(n) for n in b.split("x")) for b in args.bins.split(",")]
+    bin_sets = [
+        (int(h), int(v.rstrip("c")), v.endswith("c"))
+        for h, v in (b.split("x") for b in args.bins.split(","))
+    ]
     engine = FRTEngine(ValueModel.load(args.model, threads=2))
     settings = [s for s in SETTINGS if s.name in NAMES]
     rows = []
@@ -81,6 +113,17 @@ def main() -> None:
         roll = simulate(setting.v_start, bounds, args.rollouts, rng)
         frt = engine.exact(Pose(0.0, 0.0, 0.0), setting.v_start, bounds)
         speed_max = float(engine.outer(setting.v_start, bounds).sweep_speed_max.max())
+        instants = {
+            bins: partition_instants(
+                setting.v_start,
+                bounds,
+                max(TIMES),
+                bins,
+                speed_max,
+                args.coupled_steps if bins[2] else args.steps,
+            )
+            for bins in bin_sets
+        }
         for t, reference in zip(TIMES, swept_cells(roll, TIMES), strict=True):
             served = frt.geometry("tube", t)
             row = {
@@ -88,17 +131,17 @@ def main() -> None:
                 "t": t,
                 "served": compare_cells(reference, model_cells(served, reference)),
             }
-            for bins in bin_sets:
-                cut, seconds = partition_tube(setting.v_start, bounds, t, bins, speed_max)
+            for bins, (parts, seconds) in instants.items():
+                cut = shapely.union_all(parts[: round(t / INSTANT_S) + 1])
                 both = served.intersection(cut)
-                row[f"cut_{bins[0]}x{bins[1]}"] = {
+                row[f"cut_{bin_label(bins)}"] = {
                     **compare_cells(reference, model_cells(both, reference)),
-                    "partition_s": round(seconds, 3),
+                    "partition_s_to_3s": round(seconds, 3),
                 }
             rows.append(row)
     header = f"{'setting':26s} {'t':>3s}  {'served IoU / beyond p95':>24s}"
     for bins in bin_sets:
-        header += f"  {f'cut {bins[0]}x{bins[1]}: recall / IoU / beyond / s':>38s}"
+        header += f"  {f'cut {bin_label(bins)}: recall / IoU / beyond / s':>38s}"
     print(header)
     for row in rows:
         line = (
@@ -106,15 +149,24 @@ def main() -> None:
             f"{row['served']['iou']:11.3f} / {row['served']['beyond_p95_m']:6.2f} m"
         )
         for bins in bin_sets:
-            c = row[f"cut_{bins[0]}x{bins[1]}"]
+            c = row[f"cut_{bin_label(bins)}"]
             line += (
                 f"  {c['recall_cells']:11.4f} / {c['iou']:5.3f} / "
-                f"{c['beyond_p95_m']:6.2f} m / {c['partition_s']:5.2f}"
+                f"{c['beyond_p95_m']:6.2f} m / {c['partition_s_to_3s']:5.2f}"
             )
         print(line)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(
-        json.dumps({"rollouts": args.rollouts, "seed": args.seed, "rows": rows}, indent=2)
+        json.dumps(
+            {
+                "rollouts": args.rollouts,
+                "seed": args.seed,
+                "steps": args.steps,
+                "coupled_steps": args.coupled_steps,
+                "rows": rows,
+            },
+            indent=2,
+        )
     )
     print(f"wrote {args.out}")
 

@@ -13,7 +13,8 @@ it with httpx from this process. Prints medians and p99 for:
 3. contours for one agent (tube + 3 slices), on a fresh FRT version each time;
 4. sustained: 50 agents observed at 2 Hz while a planner (a process of its own) checks all of
    them at 10 Hz with one multi-agent request per round; a round misses its deadline when its
-   end-to-end time exceeds the request's ``deadline_ms`` (20 ms);
+   end-to-end time exceeds the request's ``deadline_ms`` (20 ms); run twice, the planner
+   sending its checks over HTTP, then over the WebSocket stream (``--planner-transport``);
 5. the HTTP floor: GET /healthz through the same client, server and middleware (what a request
    costs with no work in the route), next to the warm check;
 6. the exact set alone, in-process, for a moving and for a parked car (for the moving car also with
@@ -232,23 +233,63 @@ async def _planner(url: str, start_at: float, seconds: float, deadline_ms: float
     }
 
 
+async def _planner_ws(url: str, start_at: float, seconds: float, deadline_ms: float) -> dict:
+    """The same planner over the WebSocket stream (``WS /v1/stream``, op ``collision_check``): one
+    socket, no HTTP request per round. The stream has no Server-Timing, so only end to end."""
+    import websockets
+
+    check_times: list[float] = []
+    misses = conservative = errors = 0
+    async with websockets.connect(url.replace("http://", "ws://") + "/v1/stream") as socket:
+        await asyncio.sleep(max(0.0, start_at - time.time()))
+        start = time.monotonic()
+        k = 0
+        while time.monotonic() - start < seconds:
+            t0 = time.perf_counter()
+            body = {"trajectory": trajectory(1.0), "mode": "tube", "deadline_ms": deadline_ms}
+            await socket.send(json.dumps({"id": k, "op": "collision_check", **body}))
+            answer = await socket.recv()
+            dt = time.perf_counter() - t0
+            check_times.append(dt)
+            message = json.loads(answer)
+            errors += not message["ok"]
+            if message["ok"]:
+                conservative += message["result"]["conservative"]
+            misses += dt * 1e3 > deadline_ms
+            k += 1
+            await asyncio.sleep(max(0.0, 0.1 - dt))
+    return {
+        "check_times": check_times,
+        "server_times": [],
+        "misses": misses,
+        "conservative": conservative,
+        "errors": errors,
+    }
+
+
 def server_seconds(response: httpx.Response) -> float:
     """The server's own time for a request, from its ``Server-Timing: app;dur=<ms>`` header."""
     return float(response.headers["server-timing"].split("dur=")[1]) / 1000.0
 
 
-def _planner_process(url: str, start_at: float, seconds: float, deadline_ms: float, conn) -> None:
+def _planner_process(
+    url: str, start_at: float, seconds: float, deadline_ms: float, transport: str, conn
+) -> None:
     """The planner in a process of its own (spawned): a planner and the perception feeding the
     observations are different programs; in one event loop the observers' 100 requests/s delayed
     the planner's own sends and reads, which the service's latency does not include."""
-    conn.send(asyncio.run(_planner(url, start_at, seconds, deadline_ms)))
+    planner = {"http": _planner, "ws": _planner_ws}[transport]
+    conn.send(asyncio.run(planner(url, start_at, seconds, deadline_ms)))
     conn.close()
 
 
-async def bench_sustained(url: str, agents: int, seconds: float, headers: dict) -> dict:
+async def bench_sustained(
+    url: str, agents: int, seconds: float, headers: dict, transport: str = "http"
+) -> dict:
     """``agents`` agents observed at 2 Hz (one asyncio client, a keep-alive connection per
-    observer) while a planner in another process checks all of them at 10 Hz; a check-all round
-    misses its deadline when its end-to-end time exceeds ``deadline_ms``."""
+    observer) while a planner in another process checks all of them at 10 Hz, over HTTP or the
+    WebSocket stream (``transport``); a check-all round misses its deadline when its end-to-end
+    time exceeds ``deadline_ms``."""
     import multiprocessing
 
     rng = np.random.default_rng(3)
@@ -265,7 +306,7 @@ async def bench_sustained(url: str, agents: int, seconds: float, headers: dict) 
         receive, send = context.Pipe(duplex=False)
         start_at = time.time() + 3.0  # the spawned planner imports httpx and numpy first
         planner = context.Process(
-            target=_planner_process, args=(url, start_at, seconds, deadline_ms, send)
+            target=_planner_process, args=(url, start_at, seconds, deadline_ms, transport, send)
         )
         planner.start()
         await asyncio.sleep(max(0.0, start_at - time.time()))
@@ -292,14 +333,22 @@ async def bench_sustained(url: str, agents: int, seconds: float, headers: dict) 
             raise RuntimeError("the planner process sent no result")
         checks = receive.recv()
         planner.join(timeout=10)
+        for a in range(agents):  # the next case's planner checks every known agent
+            await client.delete(f"/v1/agents/s{a}")
+    split = {}
+    if checks["server_times"]:
+        # The same rounds from the server's Server-Timing (arrival to response start) and the rest
+        # of each round trip: the client's sending and reading, the network, the OS's scheduling.
+        split = {
+            "check_all_server": stats(checks["server_times"]),
+            "check_all_trip": stats(np.subtract(checks["check_times"], checks["server_times"])),
+        }
     return {
         "agents": agents,
         "seconds": seconds,
+        "planner_transport": transport,
         "check_all": stats(checks["check_times"]),
-        # The same rounds from the server's Server-Timing (arrival to response start) and the rest
-        # of each round trip: the client's sending and reading, the network, the OS's scheduling.
-        "check_all_server": stats(checks["server_times"]),
-        "check_all_trip": stats(np.subtract(checks["check_times"], checks["server_times"])),
+        **split,
         "observe": stats(obs_times),
         "deadline_ms": deadline_ms,
         "deadline_misses_end_to_end": checks["misses"],
@@ -443,6 +492,32 @@ def bench_exact_in_process(model: Path, n: int) -> dict[str, dict]:
     return out
 
 
+#: Where each planner transport's sustained case goes in the results.
+SUSTAINED_KEYS = {"http": "sustained_50_agents", "ws": "sustained_50_agents_ws"}
+
+
+def print_sustained(s: dict, transport: str, width: int) -> None:
+    label = "sustained: check all 50 @10 Hz" + (" over WS" if transport == "ws" else "")
+    print(
+        f"{label:{width}s}  {s['check_all']['p50_ms']:9.2f} "
+        f"{s['check_all']['p99_ms']:9.2f}  misses={s['deadline_misses_end_to_end']} of "
+        f"{s['check_all']['n']} (server side {s['deadline_misses_server_side']}) "
+        f"conservative={s['conservative_answers']} errors={s['errors']}"
+    )
+    if "check_all_server" in s:
+        print(
+            f"{'  of which at the server (Server-Timing)':{width}s}  "
+            f"{s['check_all_server']['p50_ms']:9.2f} {s['check_all_server']['p99_ms']:9.2f}"
+        )
+        print(
+            f"{'  of which the trip and the client':{width}s}  "
+            f"{s['check_all_trip']['p50_ms']:9.2f} {s['check_all_trip']['p99_ms']:9.2f}"
+        )
+    answers = s["agent_answers"]
+    exact_share = answers.get("exact", 0) / max(sum(answers.values()), 1)
+    print(f"  per-agent answers from the exact set: {exact_share:.1%} of {sum(answers.values())}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--model", type=Path, default=ROOT / "models" / "frt_unicycle.onnx")
@@ -454,6 +529,13 @@ def main() -> None:
         "--sustained-only",
         action="store_true",
         help="run only the sustained case (for comparing revisions run after run)",
+    )
+    parser.add_argument(
+        "--planner-transport",
+        choices=("http", "ws", "both"),
+        default="both",
+        help="how the sustained case's planner sends its checks (the observers always use "
+        "HTTP); both: one sustained run each, HTTP first",
     )
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "bench.json")
     args = parser.parse_args()
@@ -468,18 +550,20 @@ def main() -> None:
                 # The planner checks every known agent: the sustained case's 50 and no others.
                 for agent in ("bench-cc", "bench-obs", "bench-obs1", "bench-frt"):
                     client.delete(f"/v1/agents/{agent}").raise_for_status()
-        before = server_counters(url)
-        results["sustained_50_agents"] = asyncio.run(
-            bench_sustained(url, 50, args.sustained_seconds, {})
+        transports = (
+            ("http", "ws") if args.planner_transport == "both" else (args.planner_transport,)
         )
-        after = server_counters(url)
-        sustained = results["sustained_50_agents"]
-        sustained["deadline_misses_server_side"] = after.pop("deadline_misses") - before.pop(
-            "deadline_misses"
-        )
-        sustained["agent_answers"] = {
-            source: count - before.get(source, 0) for source, count in after.items()
-        }
+        for transport in transports:
+            before = server_counters(url)
+            sustained = asyncio.run(bench_sustained(url, 50, args.sustained_seconds, {}, transport))
+            after = server_counters(url)
+            sustained["deadline_misses_server_side"] = after.pop("deadline_misses") - before.pop(
+                "deadline_misses"
+            )
+            sustained["agent_answers"] = {
+                source: count - before.get(source, 0) for source, count in after.items()
+            }
+            results[SUSTAINED_KEYS[transport]] = sustained
     if not args.sustained_only:
         results.update(bench_exact_in_process(args.model.resolve(), args.observations))
         results.update(bench_serialisation(args.checks))
@@ -492,24 +576,9 @@ def main() -> None:
     for name, r in results.items():
         if isinstance(r, dict) and "p50_ms" in r:
             print(f"{name:{width}s}  {r['p50_ms']:9.2f} {r['p99_ms']:9.2f}")
-    s = results["sustained_50_agents"]
-    print(
-        f"{'sustained: check all 50 @10 Hz':{width}s}  {s['check_all']['p50_ms']:9.2f} "
-        f"{s['check_all']['p99_ms']:9.2f}  misses={s['deadline_misses_end_to_end']} of "
-        f"{s['check_all']['n']} (server side {s['deadline_misses_server_side']}) "
-        f"conservative={s['conservative_answers']} errors={s['errors']}"
-    )
-    print(
-        f"{'  of which at the server (Server-Timing)':{width}s}  "
-        f"{s['check_all_server']['p50_ms']:9.2f} {s['check_all_server']['p99_ms']:9.2f}"
-    )
-    print(
-        f"{'  of which the trip and the client':{width}s}  "
-        f"{s['check_all_trip']['p50_ms']:9.2f} {s['check_all_trip']['p99_ms']:9.2f}"
-    )
-    answers = s["agent_answers"]
-    exact_share = answers.get("exact", 0) / max(sum(answers.values()), 1)
-    print(f"  per-agent answers from the exact set: {exact_share:.1%} of {sum(answers.values())}")
+    for transport, key in SUSTAINED_KEYS.items():
+        if key in results:
+            print_sustained(results[key], transport, width)
     if "naive_over_engine_p50_ratio" in results:
         ratio = results["naive_over_engine_p50_ratio"]
         print(f"naive / engine (p50, same run): {ratio:.0f}x")

@@ -30,6 +30,6 @@ async def stream_socket(websocket: WebSocket) -> None:
                 except UnicodeDecodeError:
                     text = ""
             answer = await stream.handle(services, text, arrival)
-            await websocket.send_json(answer)
+            await websocket.send_text(answer)
     except (WebSocketDisconnect, OSError):  # the client went away, possibly mid-answer
         return

@@ -118,8 +118,8 @@ class _Corridors:
         no such trajectory exists (the corridors are empty somewhere).
 
         ``coupled_speed``: the speed along the corridor is a profile with bounded rates
-        (``models.speed_lp``, a linear programme per row and direction, ~1 ms each) instead of
-        taking either end of its interval at every instant independently."""
+        (``models.speed_lp``, a linear programme per row and direction, solved together) instead
+        of taking either end of its interval at every instant independently."""
         m = initial_set
         grow = 1.0 + c / m.radius_m
         eps_th = (m.heading_margin_rad * grow)[:, None]
@@ -320,8 +320,7 @@ def partition_supports(
     The bins split the forward intervals of the final (unwrapped) heading and speed, which every
     trajectory's final values lie in, so the union of a time's polygons contains every position
     reachable then; unlike one convex polygon, it has the notch behind a car that can turn round.
-    ``coupled_speed``: see ``_Corridors.supports`` (offline: a linear programme per bin and
-    direction).
+    ``coupled_speed``: see ``_Corridors.supports`` (a linear programme per bin and direction).
     """
     times = np.asarray(times, dtype=float)
     n_bins = heading_bins * speed_bins

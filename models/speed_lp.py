@@ -7,7 +7,7 @@ its interval suits that instant. No car does that: to be fast late while it was 
 have accelerated in between, at a bounded rate. This module computes the coupled maximum
 
     max  integral over [0, t] of v(s) g(s) ds
-    over speed profiles v with v >= 0, v(s_k) in [lo_k, hi_k] at the nodes, and
+    over speed profiles v with v(s_k) in [lo_k, hi_k] at the nodes (lo_k >= 0) and
          v' in [min(a_lo, 0), max(a_hi, 0)] on each sub-interval,
 
 a relaxation of the true speed dynamics (v' = u2 in [a_lo, a_hi] while moving, 0 when stopped by the
@@ -21,29 +21,82 @@ largest g on the sub-interval,
 
     integral of v g  <=  g_k (h (v_k + v_k+1) / 2) + |g_k| e,
 
-for either sign of g_k (v >= 0). The result is a linear programme in the node speeds, one per
-(row, direction), solved by HiGHS (``scipy.optimize.linprog``); its optimum is raised by a
-relative 1e-6 plus 1e-6 for the solver's tolerance. Offline only: ~1 ms per programme.
+for either sign of g_k (v >= 0). What is left is a linear programme in the node speeds,
+
+    max sum_k w_k v_k   s.t.  v_k in [lo_k, hi_k],  v_k+1 - v_k in [-fall_k, rise_k],
+
+solved exactly by dynamic programming backwards in time (:func:`max_linear_over_profiles`): the
+best gain from node k on, J_k(v), is concave and piecewise linear in v (the value of a linear
+programme in its right-hand side), so it is kept as its breakpoints; the best next speed from v is
+the window [v - fall_k, v + rise_k] clipped at J_k+1's maximiser, which shifts the rising part of
+J_k+1 left by rise_k and the falling part right by fall_k, with a plateau between. All the
+programmes of one polytope (every bin and direction of an instant) run together in numpy. Every
+optimum is raised by a relative 1e-6 plus 1e-6 for rounding.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import linprog
-from scipy.sparse import csr_matrix, diags, vstack
 
-#: Added to every optimum for the solver's tolerance: relative, and absolute (metres).
+#: Added to every optimum for floating-point rounding: relative, and absolute (metres).
 TOLERANCE_REL = 1e-6
 TOLERANCE_ABS = 1e-6
 
 
-def _difference_rows(steps: int) -> csr_matrix:
-    """Rows v_k+1 - v_k (k < steps) over the node speeds v_0..v_steps."""
-    return diags([-np.ones(steps), np.ones(steps)], [0, 1], shape=(steps, steps + 1)).tocsr()
+def _value_at(x: np.ndarray, y: np.ndarray, at: np.ndarray) -> np.ndarray:
+    """A concave piecewise-linear function given by breakpoints (x [P, B] ascending, y [P, B]) at
+    ``at`` [P] inside its domain: the least of its pieces' lines there (zero-length pieces and a
+    one-point domain are handled)."""
+    dx = np.diff(x, axis=1)
+    dy = np.diff(y, axis=1)
+    real = dx > 1e-12
+    slope = np.where(real, dy / np.where(real, dx, 1.0), 0.0)
+    lines = np.where(real, y[:, :-1] + slope * (at[:, None] - x[:, :-1]), np.inf)
+    single = y.max(axis=1)  # a domain of one point: every breakpoint holds the same value
+    value = lines.min(axis=1)
+    return np.where(np.isfinite(value), value, single)
+
+
+def max_linear_over_profiles(
+    weights: np.ndarray,
+    node_lo: np.ndarray,
+    node_hi: np.ndarray,
+    rise: np.ndarray,
+    fall: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """For each row p: max over v of sum_k weights[p, k] v_k subject to v_k in [node_lo[p, k],
+    node_hi[p, k]] and v_k+1 - v_k in [-fall[p, k], rise[p, k]] (``weights``, ``node_lo``,
+    ``node_hi`` [P, S + 1]; ``rise``, ``fall`` [P, S], both >= 0). Returns the optima [P] and [P]
+    True where no v satisfies the constraints (optimum -inf there)."""
+    nodes = weights.shape[1]
+    empty = node_lo[:, -1] > node_hi[:, -1]
+    x = np.stack([node_lo[:, -1], np.maximum(node_hi[:, -1], node_lo[:, -1])], axis=1)
+    y = weights[:, -1:] * x
+    for k in range(nodes - 2, -1, -1):
+        # Window maximum: the rising part (up to the maximiser) moves left by rise, the falling part
+        # right by fall; the maximiser's breakpoint is kept on both sides (a plateau between).
+        peak = np.argmax(y, axis=1)
+        j = np.arange(x.shape[1] + 1)[None, :]
+        left = j <= peak[:, None]
+        source = np.where(left, j, j - 1)
+        shift = np.where(left, -rise[:, k : k + 1], fall[:, k : k + 1])
+        x = np.take_along_axis(x, source, axis=1) + shift
+        y = np.take_along_axis(y, source, axis=1)
+        lo = np.maximum(x[:, 0], node_lo[:, k])
+        hi = np.minimum(x[:, -1], node_hi[:, k])
+        empty |= lo > hi
+        hi = np.maximum(hi, lo)  # an empty row goes on harmlessly; its answer is -inf
+        y_lo, y_hi = _value_at(x, y, lo), _value_at(x, y, hi)
+        y = np.where(x < lo[:, None], y_lo[:, None], np.where(x > hi[:, None], y_hi[:, None], y))
+        x = np.clip(x, lo[:, None], hi[:, None])
+        y = y + weights[:, k : k + 1] * x
+    best = y.max(axis=1)
+    best = best + TOLERANCE_REL * np.abs(best) + TOLERANCE_ABS
+    return np.where(empty, -np.inf, best), empty
 
 
 def coupled_gain(
-    weights: np.ndarray,
+    g: np.ndarray,
     h: np.ndarray,
     node_lo: np.ndarray,
     node_hi: np.ndarray,
@@ -53,40 +106,30 @@ def coupled_gain(
     """Upper bounds [N, M] on the integral of v(s) g_m(s) over admissible speed profiles, and [N]
     True where no profile fits the node bounds (an empty row).
 
-    ``weights`` [N, S, M]: the largest g_m on each of S sub-intervals of length ``h`` [N];
+    ``g`` [N, S, M]: the largest g_m on each of S sub-intervals of length ``h`` [N];
     ``node_lo``, ``node_hi`` [N, S + 1]: sound bounds on the speed at the nodes; ``step_lo``,
     ``step_hi`` [N, S]: the least and greatest speed change u2 * h on each sub-interval (the stop
     rule's rest, change 0, is always allowed).
     """
-    n, steps, directions = weights.shape
-    diff = _difference_rows(steps)
-    a_ub = vstack([diff, -diff]).tocsr()
+    n, steps, directions = g.shape
     rise = np.maximum(step_hi, 0.0)
     fall = np.maximum(-step_lo, 0.0)
-    gain = np.empty((n, directions))
-    empty = np.zeros(n, dtype=bool)
-    for i in range(n):
-        lo = np.maximum(node_lo[i], 0.0)
-        hi = node_hi[i]
-        if np.any(lo > hi):
-            empty[i] = True
-            gain[i] = -np.inf
-            continue
-        b_ub = np.concatenate([rise[i], fall[i]])
-        chord_excess = (rise[i] + fall[i]) * h[i] / 8.0  # e_k = (u - l) h^2 / 8
-        bounds = np.stack([lo, hi], axis=1)
-        for m in range(directions):
-            g = weights[i, :, m]
-            c = np.zeros(steps + 1)
-            c[:-1] += 0.5 * h[i] * g
-            c[1:] += 0.5 * h[i] * g
-            result = linprog(-c, A_ub=a_ub, b_ub=b_ub, bounds=bounds, method="highs")
-            if result.status == 2:  # infeasible: the rates cannot join the node bounds
-                empty[i] = True
-                gain[i] = -np.inf
-                break
-            if result.status != 0:
-                raise RuntimeError(f"speed LP failed: {result.message}")
-            best = -float(result.fun) + float(np.abs(g) @ chord_excess)
-            gain[i, m] = best + TOLERANCE_REL * abs(best) + TOLERANCE_ABS
-    return gain, empty
+    half = 0.5 * h[:, None, None] * g  # [N, S, M]
+    weights = np.zeros((n, steps + 1, directions))
+    weights[:, :-1] += half
+    weights[:, 1:] += half
+    chord_excess = (rise + fall) * h[:, None] / 8.0  # e_k = (u - l) h^2 / 8, [N, S]
+
+    def per_direction(a: np.ndarray) -> np.ndarray:
+        """[N, K] constraint rows repeated for each direction: [N * M, K]."""
+        return np.repeat(a, directions, axis=0)
+
+    best, empty = max_linear_over_profiles(
+        weights.transpose(0, 2, 1).reshape(n * directions, steps + 1),
+        per_direction(np.maximum(node_lo, 0.0)),
+        per_direction(node_hi),
+        per_direction(rise),
+        per_direction(fall),
+    )
+    excess = np.einsum("nsm,ns->nm", np.abs(g), chord_excess)
+    return best.reshape(n, directions) + excess, empty.reshape(n, directions).any(axis=1)

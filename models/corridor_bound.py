@@ -29,10 +29,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import shapely
 
 from models.contract import COL, HORIZON_S, INITIAL_SET, InitialSet
 from models.dynamics import heading_interval, interpolate_bounds, speed_change_interval
-from models.outer_bound import cos_max_towards
+from models.outer_bound import cos_max_towards, half_plane_polygons
 
 #: Support directions of the per-state position polygon.
 DIRECTIONS = np.arange(16) * (2 * math.pi / 16)
@@ -272,6 +273,46 @@ def sample_bounded_states(
     bound = value_lower_bound(x)
     keep = bound >= 0
     return x[keep], bound[keep]
+
+
+def partition_tubes(
+    v_start: float,
+    bounds: np.ndarray,
+    t_ends: tuple[float, ...],
+    speed_max: float,
+    heading_bins: int = 16,
+    speed_bins: int = 1,
+    coupled_speed: bool = True,
+    steps: int = 60,
+    instant_s: float = 0.1,
+    initial_set: InitialSet = INITIAL_SET,
+) -> list[shapely.Geometry]:
+    """Regions that contain every position reached during [0, t] for each t of ``t_ends``: the
+    union over instants ``instant_s`` apart of their bin polygons (:func:`partition_supports`),
+    each grown by ``speed_max * instant_s / 2`` (the farthest a car moves to the nearest instant;
+    ``speed_max`` must bound the speed over the horizon), and the initial disc grown alike for
+    the times before the first instant. Sound (tests/test_corridor_bound.py), not convex: with
+    the speed coupled it cuts most of the notch behind a car that can turn round."""
+    instants = np.arange(1, round(max(t_ends) / instant_s) + 1) * instant_s
+    support, empty = partition_supports(
+        v_start,
+        bounds,
+        instants,
+        heading_bins,
+        speed_bins,
+        steps=steps,
+        initial_set=initial_set,
+        coupled_speed=coupled_speed,
+    )
+    # shapely's buffer inscribes its arcs (16 segments a quarter): divided by cos(pi / 64) it
+    # still holds the true disc.
+    arc = math.cos(math.pi / 64)
+    grow = speed_max * instant_s / 2 / arc + 1e-6
+    parts = [shapely.Point(0.0, 0.0).buffer(initial_set.radius_m / arc + grow)]
+    for j in range(len(instants)):
+        polygons = half_plane_polygons(DIRECTIONS, support[j][~empty[j]])
+        parts.append(shapely.union_all([shapely.Polygon(p) for p in polygons]).buffer(grow))
+    return [shapely.union_all(parts[: round(t / instant_s) + 1]) for t in t_ends]
 
 
 def main() -> None:

@@ -7,13 +7,20 @@
   straight, turn again; u2 at its bounds) that sweep the front of the set, the rest under controls
   that switch between the bounds, drive straight, or take random values.
   Every recorded state is reachable, so the model must contain it (recall).
-* Outer reference: the interval outer bound of models/outer_bound.py; nothing can be outside it.
+* Outer references: the interval outer bound of models/outer_bound.py, convex; and the tighter
+  speed-coupled partition of models/corridor_bound.py (``partition_tubes``: a polygon per final
+  heading bin and instant, the speed coupled over time), which has most of the notch behind a car
+  that can turn round. Nothing reachable can be outside either; whatever the served tube keeps
+  outside the partition is proven unreachable, however well the rollouts covered the set.
 
 For each setting of models/eval_settings.py and each tube time t in {1, 2, 3} s it reports:
 the share of sampled reachable states (tau <= t) with V(tau, x) <= delta (a state reached at tau lies
 in the tube up to t when it lies in the set at tau); the share of rollout (x, y) cells inside the
 service's projected tube K(t); the IoU of K(t) with the rollout cells; and how far K(t) reaches
-beyond the rollout cells (95th percentile of the distance of extra cells to the nearest rollout cell).
+beyond the rollout cells (95th percentile of the distance of extra cells to the nearest rollout cell);
+the same for the partition bound (its recall of rollout cells must be 1: a check of both halves);
+and the area of K(t) outside the partition bound and how far its cells reach beyond the bound's
+(95th percentile, as against the rollouts).
 
 Calibration (--calibrate): scenario optimisation over random parameter settings (Lin & Bansal's
 verification of DeepReach): delta is the largest value of V at sampled reachable states, so with N
@@ -38,6 +45,7 @@ from scipy.spatial import cKDTree
 from tqdm import tqdm
 
 from models.contract import COL, HORIZON_S, N_INPUTS
+from models.corridor_bound import partition_tubes
 from models.eval_settings import SETTINGS, Setting
 from models.export_card import write_card
 from models.rollout import (
@@ -201,6 +209,7 @@ def evaluate_setting(
     frt = engine.exact(Pose(0.0, 0.0, 0.0), setting.v_start, bounds)
     frt_without = without_network(engine).exact(Pose(0.0, 0.0, 0.0), setting.v_start, bounds)
     ob = engine.outer(setting.v_start, bounds)
+    proven = partition_tubes(setting.v_start, bounds, TUBE_TIMES, float(ob.sweep_speed_max.max()))
     rows = []
     artefacts: dict[str, Any] = {"frt": frt, "rollouts": roll, "outer": ob}
     for t, reference in zip(TUBE_TIMES, swept_cells(roll, TUBE_TIMES), strict=True):
@@ -214,11 +223,12 @@ def evaluate_setting(
             model_inputs(flat_t[pick], flat_states[pick], setting.v_start, bounds)
         )
         tube = frt.geometry("tube", t)
+        tube_cells = model_cells(tube, reference)
         row = {
             "setting": setting.name,
             "t": t,
             "recall_states": float(np.mean(values <= delta)),
-            **compare_cells(reference, model_cells(tube, reference)),
+            **compare_cells(reference, tube_cells),
         }
         outer_tube = shapely.union_all(
             [shapely.Polygon(ob.sweep_polygon(k)) for k in range(len(ob.sweeps_until(t)))]
@@ -227,6 +237,18 @@ def evaluate_setting(
         row["outside_outer_m2"] = float(outside.area)
         row["beyond_outer_max_m"] = _farthest_from(outside, outer_tube)
         row["outer_bound_iou"] = compare_cells(reference, model_cells(outer_tube, reference))["iou"]
+        # The speed-coupled partition: a sound, non-convex outer bound that cuts most of the
+        # notch. It must hold every rollout cell; what the served tube keeps outside it is proven
+        # unreachable, whatever the rollouts covered.
+        bound = proven[TUBE_TIMES.index(t)]
+        bound_cells = model_cells(bound, reference)
+        against_rollouts = compare_cells(reference, bound_cells)
+        row["partition_recall_cells"] = against_rollouts["recall_cells"]
+        row["partition_iou"] = against_rollouts["iou"]
+        row["partition_beyond_p95_m"] = against_rollouts["beyond_p95_m"]
+        row["outside_partition_m2"] = float(tube.difference(bound).area)
+        # The served tube's cells beyond the bound's, as "beyond" measures them against rollouts.
+        row["beyond_partition_p95_m"] = compare_cells(bound_cells, tube_cells)["beyond_p95_m"]
         tube_without = frt_without.geometry("tube", t)
         row["iou_without_network"] = compare_cells(reference, model_cells(tube_without, reference))[
             "iou"
@@ -321,13 +343,20 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, float]:
         "rows_where_the_network_cuts": sum(
             r["iou"] > r["iou_without_network"] + 1e-9 for r in rows
         ),
+        "min_recall_cells_partition": min(r["partition_recall_cells"] for r in rows),
+        "mean_iou_partition": float(np.mean([r["partition_iou"] for r in rows])),
+        "p95_beyond_m_mean_partition": float(np.mean([r["partition_beyond_p95_m"] for r in rows])),
+        "p95_beyond_m_max_partition": max(r["partition_beyond_p95_m"] for r in rows),
+        "beyond_partition_p95_m_max": max(r["beyond_partition_p95_m"] for r in rows),
+        "beyond_partition_p95_m_mean": float(np.mean([r["beyond_partition_p95_m"] for r in rows])),
     }
 
 
 def print_table(rows: list[dict[str, Any]]) -> None:
     header = (
         f"{'setting':28s} {'t':>4s} {'recall(states)':>14s} {'recall(cells)':>13s} {'IoU':>6s} "
-        f"{'beyond p95 [m]':>14s} {'IoU outer bound':>15s} {'IoU w/o network':>15s}"
+        f"{'beyond p95 [m]':>14s} {'IoU outer bound':>15s} {'IoU w/o network':>15s} "
+        f"{'IoU partition':>13s} {'partition beyond p95 [m]':>24s} {'beyond partition p95 [m]':>24s}"
     )
     print(header)
     print("-" * len(header))
@@ -335,7 +364,9 @@ def print_table(rows: list[dict[str, Any]]) -> None:
         print(
             f"{r['setting']:28s} {r['t']:4.1f} {r['recall_states']:14.4f} "
             f"{r['recall_cells']:13.4f} {r['iou']:6.3f} {r['beyond_p95_m']:14.2f} "
-            f"{r['outer_bound_iou']:15.3f} {r['iou_without_network']:15.3f}"
+            f"{r['outer_bound_iou']:15.3f} {r['iou_without_network']:15.3f} "
+            f"{r['partition_iou']:13.3f} {r['partition_beyond_p95_m']:24.2f} "
+            f"{r['beyond_partition_p95_m']:24.2f}"
         )
 
 

@@ -33,17 +33,29 @@ def render(card: dict) -> str:
         "K(t) reaches beyond the rollout cells; IoU of the union of the interval outer bound's 0.025 s "
         "sweep polygons; IoU of the service's tube with the network's level at +inf (the engine's "
         "outer-bound construction alone: the difference to the IoU column is what the network "
-        "adds).",
+        "adds); then the speed-coupled partition bound (`models.corridor_bound.partition_tubes`, a "
+        "proven outer tube that has most of the notch behind a car that can turn round): its recall "
+        'of rollout cells (must be 1), its IoU and "beyond" against the rollout cells, and how far '
+        'the service\'s tube reaches beyond it (95th percentile over cells, as "beyond"): that '
+        "part is proven unreachable, whatever the rollouts covered.",
         "",
         "| setting | t [s] | recall (states) | recall (cells) | IoU | beyond p95 [m] "
-        "| IoU outer bound | IoU without network |",
-        "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+        "| IoU outer bound | IoU without network | partition: recall (cells) / IoU / beyond p95 [m] "
+        "| beyond partition p95 [m] |",
+        "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
     ]
     for r in acc["rows"]:
+        partition = (
+            f"{r['partition_recall_cells']:.4f} / {r['partition_iou']:.3f} / "
+            f"{r['partition_beyond_p95_m']:.2f}"
+            if "partition_iou" in r
+            else "–"
+        )
         lines.append(
             f"| {r['setting']} | {r['t']:.0f} | {r['recall_states']:.4f} | {r['recall_cells']:.4f} "
             f"| {r['iou']:.3f} | {r['beyond_p95_m']:.2f} | {r['outer_bound_iou']:.3f} "
-            f"| {r.get('iou_without_network', float('nan')):.3f} |"
+            f"| {r.get('iou_without_network', float('nan')):.3f} | {partition} "
+            f"| {r.get('beyond_partition_p95_m', float('nan')):.2f} |"
         )
     lines += [
         "",
@@ -61,6 +73,14 @@ def render(card: dict) -> str:
         f"| beyond p95, mean [m] | {s['p95_beyond_m_mean']:.2f} |",
         f"| farthest reach beyond the outer bound (union of 0.025 s sweep polygons) [m] | "
         f"{s.get('beyond_outer_bound_max_m', float('nan')):.3f} |",
+        f"| partition bound: min recall (cells) | "
+        f"{s.get('min_recall_cells_partition', float('nan')):.4f} |",
+        f"| partition bound: beyond p95, mean (worst) [m] | "
+        f"{s.get('p95_beyond_m_mean_partition', float('nan')):.2f} "
+        f"({s.get('p95_beyond_m_max_partition', float('nan')):.2f}) |",
+        f"| service's tube beyond the partition bound, p95: mean (worst) [m] | "
+        f"{s.get('beyond_partition_p95_m_mean', float('nan')):.2f} "
+        f"({s.get('beyond_partition_p95_m_max', float('nan')):.2f}) |",
         "",
         "## Calibration",
         "",

@@ -24,17 +24,14 @@ import time
 from pathlib import Path
 
 import numpy as np
-import shapely
 from tqdm import tqdm
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from models.contract import INITIAL_SET  # noqa: E402
-from models.corridor_bound import DIRECTIONS, partition_supports  # noqa: E402
+from models.corridor_bound import partition_tubes  # noqa: E402
 from models.eval_settings import SETTINGS  # noqa: E402
 from models.evaluate import compare_cells, model_cells, simulate, swept_cells  # noqa: E402
-from models.outer_bound import half_plane_polygons  # noqa: E402
 from service.engine import FRTEngine, Pose  # noqa: E402
 from service.model_runtime import ValueModel  # noqa: E402
 
@@ -50,32 +47,6 @@ NAMES = (
 )
 TIMES = (2.0, 3.0)
 INSTANT_S = 0.1
-
-
-def partition_instants(
-    v_start: float,
-    bounds: np.ndarray,
-    t_end: float,
-    bins: tuple[int, int, bool],
-    speed_max: float,
-    steps: int,
-) -> tuple[list[shapely.Geometry], float]:
-    """For each instant 0.1 s apart up to t_end, the union of its bin polygons grown by
-    speed_max * dt / 2 (so the instants' union holds every time between them), the initial disc
-    first; and the seconds the partition took."""
-    heading_bins, speed_bins, coupled = bins
-    times = np.arange(1, round(t_end / INSTANT_S) + 1) * INSTANT_S
-    started = time.perf_counter()
-    support, empty = partition_supports(
-        v_start, bounds, times, heading_bins, speed_bins, steps=steps, coupled_speed=coupled
-    )
-    grow = speed_max * INSTANT_S / 2 + 0.05
-    parts = [shapely.Point(0.0, 0.0).buffer(INITIAL_SET.radius_m + grow)]  # times up to dt / 2
-    for j in range(len(times)):
-        polygons = half_plane_polygons(DIRECTIONS, support[j][~empty[j]])
-        union = shapely.union_all([shapely.Polygon(p) for p in polygons])
-        parts.append(union.buffer(grow))
-    return parts, time.perf_counter() - started
 
 
 def bin_label(bins: tuple[int, int, bool]) -> str:
@@ -113,17 +84,19 @@ def main() -> None:
         roll = simulate(setting.v_start, bounds, args.rollouts, rng)
         frt = engine.exact(Pose(0.0, 0.0, 0.0), setting.v_start, bounds)
         speed_max = float(engine.outer(setting.v_start, bounds).sweep_speed_max.max())
-        instants = {
-            bins: partition_instants(
+        tubes = {}
+        for bins in bin_sets:
+            started = time.perf_counter()
+            cuts = partition_tubes(
                 setting.v_start,
                 bounds,
-                max(TIMES),
-                bins,
+                TIMES,
                 speed_max,
-                args.coupled_steps if bins[2] else args.steps,
+                *bins,
+                steps=args.coupled_steps if bins[2] else args.steps,
+                instant_s=INSTANT_S,
             )
-            for bins in bin_sets
-        }
+            tubes[bins] = (cuts, time.perf_counter() - started)
         for t, reference in zip(TIMES, swept_cells(roll, TIMES), strict=True):
             served = frt.geometry("tube", t)
             row = {
@@ -131,9 +104,8 @@ def main() -> None:
                 "t": t,
                 "served": compare_cells(reference, model_cells(served, reference)),
             }
-            for bins, (parts, seconds) in instants.items():
-                cut = shapely.union_all(parts[: round(t / INSTANT_S) + 1])
-                both = served.intersection(cut)
+            for bins, (cuts, seconds) in tubes.items():
+                both = served.intersection(cuts[TIMES.index(t)])
                 row[f"cut_{bin_label(bins)}"] = {
                     **compare_cells(reference, model_cells(both, reference)),
                     "partition_s_to_3s": round(seconds, 3),

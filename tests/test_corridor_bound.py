@@ -129,6 +129,31 @@ def test_speed_coupled_polygons_hold_every_simulated_position(seed: int) -> None
             assert inside.any(axis=1).all(), (v_start, bounds, times[j])
 
 
+def test_partition_tubes_hold_every_simulated_position_up_to_their_time() -> None:
+    """models.corridor_bound.partition_tubes (the evaluation's proven outer tube): every position
+    recorded every 0.02 s, between the 0.1 s instants too, lies in the tube of each t_end after
+    it; a wide, a shrinking and a random setting, extremal schedules, edge starts."""
+    from models.corridor_bound import partition_tubes
+
+    rng = np.random.default_rng(5)
+    named = {s.name: s for s in SETTINGS}
+    settings = [
+        (named[name].v_start, named[name].bounds())
+        for name in ("urban_wide", "shrinking_steering_only")
+    ]
+    settings += [(float(p[COL["v_start"]]), p[6:]) for p in sample_parameters(1, rng)]
+    t_ends = (1.0, 3.0)
+    for v_start, bounds in settings:
+        speed_max = float(outer_bound(v_start, bounds).sweep_speed_max.max())
+        tubes = partition_tubes(v_start, bounds, t_ends, speed_max)
+        _, trace = simulate(v_start, bounds, 1000, rng, sample_reference_schedules)
+        for tau, state in trace[::3]:
+            points = shapely.points(np.stack([state[0], state[1]], axis=1))
+            for t_end, tube in zip(t_ends, tubes, strict=True):
+                if float(tau[0]) <= t_end + 1e-9:
+                    assert shapely.covers(tube, points).all(), (v_start, float(tau[0]), t_end)
+
+
 def test_coupling_the_speed_cuts_where_independent_speed_ends_do_not() -> None:
     """urban_wide at t = 3 s, 14 m behind and 4 m beside the start: inside a 16 x 6 heading x
     speed bin polygon with the speed's ends taken independently at every instant, outside all 16

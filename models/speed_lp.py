@@ -44,17 +44,17 @@ TOLERANCE_ABS = 1e-6
 
 
 def _value_at(x: np.ndarray, y: np.ndarray, at: np.ndarray) -> np.ndarray:
-    """A concave piecewise-linear function given by breakpoints (x [P, B] ascending, y [P, B]) at
-    ``at`` [P] inside its domain: the least of its pieces' lines there (zero-length pieces and a
-    one-point domain are handled)."""
-    dx = np.diff(x, axis=1)
-    dy = np.diff(y, axis=1)
-    real = dx > 1e-12
-    slope = np.where(real, dy / np.where(real, dx, 1.0), 0.0)
-    lines = np.where(real, y[:, :-1] + slope * (at[:, None] - x[:, :-1]), np.inf)
-    single = y.max(axis=1)  # a domain of one point: every breakpoint holds the same value
-    value = lines.min(axis=1)
-    return np.where(np.isfinite(value), value, single)
+    """A piecewise-linear function given by breakpoints (x [P, B] ascending, y [P, B]) at ``at``
+    [P] inside its domain, by interpolation on the piece that holds it (a zero-length piece, a
+    repeated breakpoint, holds one value)."""
+    rows = np.arange(len(at))
+    right = np.clip((x < at[:, None]).sum(axis=1), 1, x.shape[1] - 1)
+    x0, x1 = x[rows, right - 1], x[rows, right]
+    y0, y1 = y[rows, right - 1], y[rows, right]
+    span = x1 - x0
+    real = span > 1e-12
+    fraction = np.where(real, (at - x0) / np.where(real, span, 1.0), 1.0)
+    return y0 + fraction * (y1 - y0)
 
 
 def max_linear_over_profiles(
@@ -76,12 +76,15 @@ def max_linear_over_profiles(
         # Window maximum: the rising part (up to the maximiser) moves left by rise, the falling part
         # right by fall; the maximiser's breakpoint is kept on both sides (a plateau between).
         peak = np.argmax(y, axis=1)
-        j = np.arange(x.shape[1] + 1)[None, :]
-        left = j <= peak[:, None]
-        source = np.where(left, j, j - 1)
-        shift = np.where(left, -rise[:, k : k + 1], fall[:, k : k + 1])
-        x = np.take_along_axis(x, source, axis=1) + shift
-        y = np.take_along_axis(y, source, axis=1)
+        left = np.arange(x.shape[1] + 1)[None, :] <= peak[:, None]
+        x = np.where(
+            left,
+            np.concatenate([x, x[:, -1:]], axis=1) - rise[:, k : k + 1],
+            np.concatenate([x[:, :1], x], axis=1) + fall[:, k : k + 1],
+        )
+        y = np.where(
+            left, np.concatenate([y, y[:, -1:]], axis=1), np.concatenate([y[:, :1], y], axis=1)
+        )
         lo = np.maximum(x[:, 0], node_lo[:, k])
         hi = np.minimum(x[:, -1], node_hi[:, k])
         empty |= lo > hi

@@ -31,7 +31,13 @@ sys.path.insert(0, str(ROOT))
 
 from models.corridor_bound import partition_tubes  # noqa: E402
 from models.eval_settings import SETTINGS  # noqa: E402
-from models.evaluate import compare_cells, model_cells, simulate, swept_cells  # noqa: E402
+from models.evaluate import (  # noqa: E402
+    CELL_M,
+    compare_cells,
+    model_cells,
+    simulate,
+    swept_cells,
+)
 from service.engine import FRTEngine, Pose  # noqa: E402
 from service.model_runtime import ValueModel  # noqa: E402
 
@@ -47,6 +53,46 @@ NAMES = (
 )
 TIMES = (2.0, 3.0)
 INSTANT_S = 0.1
+
+
+#: Settings drawn by --plot, at t = 3 s.
+PLOTTED = ("urban_wide", "shrinking_wide_to_narrow", "low_confidence_urban")
+
+
+def plot(drawn: dict[str, tuple], path: Path) -> None:
+    """Per setting: the rollout cells, the served tube and the coupled partition tube at 3 s."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(drawn), figsize=(4.4 * len(drawn), 4.6))
+    panels = zip(np.atleast_1d(axes), drawn.items(), strict=True)
+    for ax, (name, (reference, served, bound)) in panels:
+        ax.scatter(
+            (reference[:, 0] + 0.5) * CELL_M,
+            (reference[:, 1] + 0.5) * CELL_M,
+            s=0.2,
+            c="tab:blue",
+            label="rollout cells (reached)",
+        )
+        for geometry, colour, label in (
+            (served, "tab:red", "served tube"),
+            (bound, "black", "partition, speed coupled (proven)"),
+        ):
+            for polygon in getattr(geometry, "geoms", [geometry]):
+                ax.plot(*polygon.exterior.xy, color=colour, lw=1.1, label=label)
+                for hole in polygon.interiors:
+                    ax.plot(*hole.xy, color=colour, lw=0.8)
+        ax.set_title(f"{name}, t = 3 s", fontsize=10)
+        ax.set_aspect("equal")
+        ax.set_xlabel("x [m]")
+        handles, labels = ax.get_legend_handles_labels()
+        unique = dict(zip(labels, handles, strict=False))
+    fig.legend(unique.values(), unique.keys(), loc="lower center", ncol=3, fontsize=9)
+    fig.tight_layout(rect=(0, 0.08, 1, 1))
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
 
 
 def bin_label(bins: tuple[int, int, bool]) -> str:
@@ -70,6 +116,9 @@ def main() -> None:
     )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "partition_bound.json")
+    parser.add_argument(
+        "--plot", type=Path, default=None, help="PNG of three settings at 3 s (docs/...)"
+    )
     args = parser.parse_args()
     bin_sets = [
         (int(h), int(v.rstrip("c")), v.endswith("c"))
@@ -78,6 +127,7 @@ def main() -> None:
     engine = FRTEngine(ValueModel.load(args.model, threads=2))
     settings = [s for s in SETTINGS if s.name in NAMES]
     rows = []
+    drawn: dict[str, tuple] = {}
     for setting in tqdm(settings, desc="settings", unit="setting"):
         bounds = setting.bounds()
         rng = np.random.default_rng(args.seed)
@@ -111,6 +161,9 @@ def main() -> None:
                     "partition_s_to_3s": round(seconds, 3),
                 }
             rows.append(row)
+            coupled = [cuts for bins, (cuts, _) in tubes.items() if bins[2]]
+            if setting.name in PLOTTED and t == max(TIMES) and coupled:
+                drawn[setting.name] = (reference, served, coupled[0][TIMES.index(t)])
     header = f"{'setting':26s} {'t':>3s}  {'served IoU / beyond p95':>24s}"
     for bins in bin_sets:
         header += f"  {f'cut {bin_label(bins)}: recall / IoU / beyond / s':>38s}"
@@ -141,6 +194,9 @@ def main() -> None:
         )
     )
     print(f"wrote {args.out}")
+    if args.plot and drawn:
+        plot(drawn, args.plot)
+        print(f"wrote {args.plot}")
 
 
 if __name__ == "__main__":

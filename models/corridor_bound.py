@@ -33,7 +33,7 @@ import shapely
 
 from models.contract import COL, HORIZON_S, INITIAL_SET, InitialSet
 from models.dynamics import heading_interval, interpolate_bounds, speed_change_interval
-from models.outer_bound import cos_max_towards, half_plane_polygons
+from models.outer_bound import cos_max_towards, half_plane_polygons, outer_bound
 
 #: Support directions of the per-state position polygon.
 DIRECTIONS = np.arange(16) * (2 * math.pi / 16)
@@ -286,32 +286,45 @@ def partition_tubes(
     steps: int = 60,
     instant_s: float = 0.1,
     initial_set: InitialSet = INITIAL_SET,
+    partitioned_from_s: float = 0.0,
 ) -> list[shapely.Geometry]:
     """Regions that contain every position reached during [0, t] for each t of ``t_ends``: the
     union over instants ``instant_s`` apart of their bin polygons (:func:`partition_supports`),
     each grown by ``speed_max * instant_s / 2`` (the farthest a car moves to the nearest instant;
     ``speed_max`` must bound the speed over the horizon), and the initial disc grown alike for
     the times before the first instant. Sound (tests/test_corridor_bound.py), not convex: with
-    the speed coupled it cuts most of the notch behind a car that can turn round."""
+    the speed coupled it cuts most of the notch behind a car that can turn round.
+    ``partitioned_from_s``: instants before it take the interval outer bound's convex polygon
+    instead (early sets have no notch; the partition's cost is in the instants it runs on)."""
     instants = np.arange(1, round(max(t_ends) / instant_s) + 1) * instant_s
+    partitioned = instants >= partitioned_from_s - 1e-9
     support, empty = partition_supports(
         v_start,
         bounds,
-        instants,
+        instants[partitioned],
         heading_bins,
         speed_bins,
         steps=steps,
         initial_set=initial_set,
         coupled_speed=coupled_speed,
     )
+    convex = (
+        outer_bound(v_start, bounds, initial_set=initial_set) if not partitioned.all() else None
+    )
     # shapely's buffer inscribes its arcs (16 segments a quarter): divided by cos(pi / 64) it
     # still holds the true disc.
     arc = math.cos(math.pi / 64)
     grow = speed_max * instant_s / 2 / arc + 1e-6
     parts = [shapely.Point(0.0, 0.0).buffer(initial_set.radius_m / arc + grow)]
-    for j in range(len(instants)):
-        polygons = half_plane_polygons(DIRECTIONS, support[j][~empty[j]])
-        parts.append(shapely.union_all([shapely.Polygon(p) for p in polygons]).buffer(grow))
+    j = 0
+    for s in instants:
+        if convex is not None and s < partitioned_from_s - 1e-9:
+            region = shapely.Polygon(convex.polygons_at([convex.nearest_row(s)])[0])
+        else:
+            polygons = half_plane_polygons(DIRECTIONS, support[j][~empty[j]])
+            region = shapely.union_all([shapely.Polygon(p) for p in polygons])
+            j += 1
+        parts.append(region.buffer(grow))
     return [shapely.union_all(parts[: round(t / instant_s) + 1]) for t in t_ends]
 
 

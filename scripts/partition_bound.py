@@ -114,6 +114,12 @@ def main() -> None:
     parser.add_argument(
         "--coupled-steps", type=int, default=60, help="the same with the speed coupled"
     )
+    parser.add_argument(
+        "--partitioned-from",
+        type=float,
+        default=0.0,
+        help="instants before this many seconds take the convex outer polygon (cheaper)",
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "partition_bound.json")
     parser.add_argument(
@@ -145,6 +151,7 @@ def main() -> None:
                 *bins,
                 steps=args.coupled_steps if bins[2] else args.steps,
                 instant_s=INSTANT_S,
+                partitioned_from_s=args.partitioned_from,
             )
             tubes[bins] = (cuts, time.perf_counter() - started)
         for t, reference in zip(TIMES, swept_cells(roll, TIMES), strict=True):
@@ -188,6 +195,7 @@ def main() -> None:
                 "seed": args.seed,
                 "steps": args.steps,
                 "coupled_steps": args.coupled_steps,
+                "partitioned_from_s": args.partitioned_from,
                 "rows": rows,
             },
             indent=2,

@@ -11,6 +11,7 @@ for. Clearance is the signed distance to K minus R_col: negative inside C.
 from __future__ import annotations
 
 import asyncio
+import logging
 import time
 from collections.abc import Sequence
 from functools import lru_cache
@@ -36,6 +37,8 @@ from service.services import Services
 from service.settings import Settings
 from service.store import AgentState
 from service.tube_builder import within_built_tubes
+
+log = logging.getLogger("frt.checks")
 
 #: Clearances are clipped to +-this (metres) so that "no set at all" (infinite distance) stays JSON.
 CLEARANCE_LIMIT = 1e9
@@ -108,6 +111,7 @@ async def answer_states(
 ) -> list[CollisionCheckResponse]:
     settings = services.settings
     services.require_engine()
+    entered = time.perf_counter()
     deadline_ms = request.deadline_ms or settings.deadline_ms
     jobs = [services.job_for(state) for state in states]
     costs = services.answer_costs
@@ -179,9 +183,27 @@ async def answer_states(
     for reason, count in (("not_ready", not_ready), ("no_time", no_time), ("tubes", len(coarse))):
         if count:
             reasons.labels(reason).inc(count)
-    costs.response.record(time.perf_counter() - sets_done, len(states))
-    if time.perf_counter() - arrival > deadline_ms / 1000.0:
+    done = time.perf_counter()
+    costs.response.record(done - sets_done, len(states))
+    if done - arrival > deadline_ms / 1000.0:
         services.metrics.deadline_misses.inc()
+        log.warning(
+            "collision check answered after its deadline",
+            extra={
+                "deadline_ms": deadline_ms,
+                "elapsed_ms": round((done - arrival) * 1e3, 3),
+                # Where the time went: before this function ran (parsing, the event loop busy
+                # with other work), waiting for exact sets, then each answering phase.
+                "before_ms": round((entered - arrival) * 1e3, 3),
+                "wait_ms": round((start - entered) * 1e3, 3),
+                "boxes_ms": round((boxes_done - start) * 1e3, 3),
+                "sets_ms": round((sets_done - boxes_done) * 1e3, 3),
+                "response_ms": round((done - sets_done) * 1e3, 3),
+                "agents": len(states),
+                "not_ready": not_ready,
+                "no_time": no_time,
+            },
+        )
     return results
 
 

@@ -3,6 +3,7 @@ is no time left to measure them (service.answer_cost, service.checks)."""
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Iterator
 from pathlib import Path
@@ -97,3 +98,30 @@ def _conservative_answers(client: TestClient) -> dict[str, float]:
             reason = line.split('reason="')[1].split('"')[0]
             out[reason] = float(line.rsplit(" ", 1)[1])
     return out
+
+
+def test_a_late_check_is_counted_and_logged_with_where_its_time_went(
+    client: TestClient, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A deadline no answer can meet (1 us): the check still answers, /metrics counts the miss,
+    and one warning names the deadline, the elapsed time and each phase, which add up to it."""
+    client.post("/v1/agents/late/observations", params={"wait_frt_ms": 5000}, json=observation(1.0))
+    check = {"trajectory": [{"t": 1.5, "x": 2.0, "y": 0.5}], "deadline_ms": 0.001}
+    before = _deadline_misses(client)
+    with caplog.at_level(logging.WARNING, logger="frt.checks"):
+        answer = client.post("/v1/agents/late/collision-check", json=check)
+    assert answer.status_code == 200
+    assert _deadline_misses(client) == before + 1
+    (record,) = [r for r in caplog.records if r.name == "frt.checks"]
+    assert record.deadline_ms == 0.001 and record.elapsed_ms > 0.001
+    phases = ("before_ms", "wait_ms", "boxes_ms", "sets_ms", "response_ms")
+    assert all(getattr(record, p) >= 0 for p in phases)
+    assert sum(getattr(record, p) for p in phases) == pytest.approx(record.elapsed_ms, abs=0.01)
+    assert record.agents == 1
+
+
+def _deadline_misses(client: TestClient) -> float:
+    lines = client.get("/metrics").text.splitlines()
+    return next(
+        float(x.rsplit(" ", 1)[1]) for x in lines if x.startswith("frt_deadline_misses_total")
+    )

@@ -112,8 +112,9 @@ class _Corridors:
         speed_f: tuple[np.ndarray, np.ndarray],
         initial_set: InitialSet,
         coupled_speed: bool = False,
+        directions: np.ndarray = DIRECTIONS,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Support values [N, M] in ``DIRECTIONS`` of a convex polygon that contains every position
+        """Support values [N, M] in ``directions`` of a convex polygon that contains every position
         at time t of a trajectory from {l <= c} [N] whose final (unwrapped) heading lies in
         ``theta_f`` = (lo, hi) [N] and final speed in ``speed_f`` = (lo, hi) [N]; and [N] True where
         no such trajectory exists (the corridors are empty somewhere).
@@ -143,12 +144,12 @@ class _Corridors:
         back_hi_nodes = speed_f[1][:, None] - self.brake_after
         empty |= np.any((v_lo_f > back_hi_nodes + 1e-9) | (back_lo_nodes > v_hi_f + 1e-9), axis=1)
         th_hi = np.maximum(th_hi, th_lo)
-        c_hi = cos_max_towards(th_lo, th_hi, DIRECTIONS)
+        c_hi = cos_max_towards(th_lo, th_hi, directions)
 
         if coupled_speed:
             from models.speed_lp import coupled_gain
 
-            gain = np.full((self.n, len(DIRECTIONS)), -np.inf)
+            gain = np.full((self.n, len(directions)), -np.inf)
             live = np.flatnonzero(~empty)
             node_lo = np.maximum(v_lo_f, back_lo_nodes)
             node_hi = np.minimum(v_hi_f, back_hi_nodes)
@@ -287,6 +288,7 @@ def partition_tubes(
     instant_s: float = 0.1,
     initial_set: InitialSet = INITIAL_SET,
     partitioned_from_s: float = 0.0,
+    directions: np.ndarray = DIRECTIONS,
 ) -> list[shapely.Geometry]:
     """Regions that contain every position reached during [0, t] for each t of ``t_ends``: the
     union over instants ``instant_s`` apart of their bin polygons (:func:`partition_supports`),
@@ -307,6 +309,7 @@ def partition_tubes(
         steps=steps,
         initial_set=initial_set,
         coupled_speed=coupled_speed,
+        directions=directions,
     )
     convex = (
         outer_bound(v_start, bounds, initial_set=initial_set) if not partitioned.all() else None
@@ -321,7 +324,7 @@ def partition_tubes(
         if convex is not None and s < partitioned_from_s - 1e-9:
             region = shapely.Polygon(convex.polygons_at([convex.nearest_row(s)])[0])
         else:
-            polygons = half_plane_polygons(DIRECTIONS, support[j][~empty[j]])
+            polygons = half_plane_polygons(directions, support[j][~empty[j]])
             region = shapely.union_all([shapely.Polygon(p) for p in polygons])
             j += 1
         parts.append(region.buffer(grow))
@@ -366,9 +369,10 @@ def partition_supports(
     horizon: float = HORIZON_S,
     initial_set: InitialSet = INITIAL_SET,
     coupled_speed: bool = False,
+    directions: np.ndarray = DIRECTIONS,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Outer polygons of the positions reachable at exactly each of ``times`` [J], one per final
-    heading x final speed bin: supports [J, B, M] in ``DIRECTIONS`` (B = heading_bins x
+    heading x final speed bin: supports [J, B, M] in ``directions`` (B = heading_bins x
     speed_bins) and [J, B] True for bins no trajectory reaches.
 
     The bins split the forward intervals of the final (unwrapped) heading and speed, which every
@@ -401,8 +405,9 @@ def partition_supports(
         (speed[:, 0], speed[:, 1]),
         initial_set,
         coupled_speed=coupled_speed,
+        directions=directions,
     )
     return (
-        support.reshape(len(times), n_bins, len(DIRECTIONS)),
+        support.reshape(len(times), n_bins, len(directions)),
         empty.reshape(len(times), n_bins),
     )

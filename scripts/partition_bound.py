@@ -120,6 +120,13 @@ def main() -> None:
         default=0.0,
         help="instants before this many seconds take the convex outer polygon (cheaper)",
     )
+    parser.add_argument(
+        "--directions", type=int, default=16, help="support directions of each bin's polygon"
+    )
+    parser.add_argument("--only", nargs="*", default=None, help="names of settings to run")
+    parser.add_argument(
+        "--instant", type=float, default=INSTANT_S, help="seconds between the tube's instants"
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "partition_bound.json")
     parser.add_argument(
@@ -131,7 +138,8 @@ def main() -> None:
         for h, v in (b.split("x") for b in args.bins.split(","))
     ]
     engine = FRTEngine(ValueModel.load(args.model, threads=2))
-    settings = [s for s in SETTINGS if s.name in NAMES]
+    settings = [s for s in SETTINGS if s.name in (args.only or NAMES)]
+    directions = np.arange(args.directions) * (2 * np.pi / args.directions)
     rows = []
     drawn: dict[str, tuple] = {}
     for setting in tqdm(settings, desc="settings", unit="setting"):
@@ -150,8 +158,9 @@ def main() -> None:
                 speed_max,
                 *bins,
                 steps=args.coupled_steps if bins[2] else args.steps,
-                instant_s=INSTANT_S,
+                instant_s=args.instant,
                 partitioned_from_s=args.partitioned_from,
+                directions=directions,
             )
             tubes[bins] = (cuts, time.perf_counter() - started)
         for t, reference in zip(TIMES, swept_cells(roll, TIMES), strict=True):
@@ -196,6 +205,8 @@ def main() -> None:
                 "steps": args.steps,
                 "coupled_steps": args.coupled_steps,
                 "partitioned_from_s": args.partitioned_from,
+                "directions": args.directions,
+                "instant_s": args.instant,
                 "rows": rows,
             },
             indent=2,

@@ -151,6 +151,17 @@ def test_partition_tubes_hold_every_simulated_position_up_to_their_time() -> Non
             partition_tubes(
                 v_start, bounds, t_ends, speed_max, 8, steps=20, partitioned_from_s=1.5
             ),
+            # finer: 24 directions, instants 0.05 s apart
+            partition_tubes(
+                v_start,
+                bounds,
+                t_ends,
+                speed_max,
+                8,
+                steps=20,
+                instant_s=0.05,
+                directions=np.arange(24) * (2 * np.pi / 24),
+            ),
         )
         _, trace = simulate(v_start, bounds, 1000, rng, sample_reference_schedules)
         for tau, state in trace[::3]:

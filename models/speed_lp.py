@@ -15,8 +15,8 @@ stop rule), so its maximum is at least what any admissible trajectory gains: a s
 
 The integral is discretised outward. On a sub-interval of length h whose rates lie in [l, u]
 (l <= 0 <= u), a profile lies under the roof min(v_k + u s, v_k+1 - l (h - s)) and above the
-matching floor, which differ from the chord between v_k and v_k+1 by at most the area
-e = (u - l) h^2 / 8 (the roof's apex over the chord, attained when v_k = v_k+1). With g_k the
+matching floor, which differ from the chord between v_k and v_k+1 by at most the area of the
+roof's triangle over the chord, u (-l) h^2 / (2 (u - l)) <= e = (u - l) h^2 / 8. With g_k the
 largest g on the sub-interval,
 
     integral of v g  <=  g_k (h (v_k + v_k+1) / 2) + |g_k| e,
@@ -30,8 +30,8 @@ best gain from node k on, J_k(v), is concave and piecewise linear in v (the valu
 programme in its right-hand side), so it is kept as its breakpoints; the best next speed from v is
 the window [v - fall_k, v + rise_k] clipped at J_k+1's maximiser, which shifts the rising part of
 J_k+1 left by rise_k and the falling part right by fall_k, with a plateau between. All the
-programmes of one polytope (every bin and direction of an instant) run together in numpy. Every
-optimum is raised by a relative 1e-6 plus 1e-6 for rounding.
+programmes (every instant, bin and direction) run together in numpy, each row with its own
+constraints. Every optimum is raised by a relative 1e-6 plus 1e-6 for rounding.
 """
 
 from __future__ import annotations

@@ -424,6 +424,11 @@ def main() -> None:
     parser.add_argument("--write-card", action="store_true")
     parser.add_argument("--calibrate-only", action="store_true", help="calibrate, skip evaluation")
     parser.add_argument("--only", nargs="*", default=None, help="names of settings to evaluate")
+    parser.add_argument(
+        "--notch-cut",
+        action="store_true",
+        help="evaluate the engine with FRTEngine(notch_cut=True) (off in the service)",
+    )
     parser.add_argument("--plot", type=Path, default=None)
     parser.add_argument("--json", type=Path, default=None)
     args = parser.parse_args()
@@ -454,7 +459,7 @@ def main() -> None:
         if args.calibrate_only:
             return
     delta = model.card.delta
-    engine = FRTEngine(model)
+    engine = FRTEngine(model, notch_cut=args.notch_cut)
     settings = [s for s in SETTINGS if not args.only or s.name in args.only]
     rows: list[dict[str, Any]] = []
     artefacts: dict[str, dict[str, Any]] = {}

@@ -17,8 +17,10 @@ it with httpx from this process. Prints medians and p99 for:
    sending its checks over HTTP, then over the WebSocket stream (``--planner-transport``);
 5. the HTTP floor: GET /healthz through the same client, server and middleware (what a request
    costs with no work in the route), next to the warm check;
-6. the exact set alone, in-process, for a moving and for a parked car (for the moving car also with
-   the projection network evaluated at every lattice node, i.e. without ``service.refine``);
+6. the exact set alone, in-process, for a moving, a parked and a wide-bound car (for the moving car
+   also with the projection network evaluated at every lattice node, i.e. without
+   ``service.refine``; for the wide one also cut to the speed-coupled partition,
+   ``FRTEngine(notch_cut=True)``, which the service does not use);
 7. serialising a 50-agent collision answer in-process, the way the service does
    (``service.routes.model_json``) and the way FastAPI does for a returned model (validated again
    against ``response_model``, then ``jsonable_encoder`` and ``json.dumps``), alternately;
@@ -396,6 +398,8 @@ EXACT_CASES = {
     "exact_set_in_process_moving_8mps": (8.0, [-0.15, -1.5, -0.15, -1.5, 0.15, 1.5, 0.15, 1.5]),
     "exact_set_in_process_parked": (0.0, [-0.05, -0.2, -0.05, -0.2, 0.05, 0.2, 0.05, 0.2]),
     "exact_set_in_process_parked_zero_bounds": (0.0, [0.0] * 8),
+    # urban_wide of the evaluation: it can turn round, so FRTEngine(notch_cut=True) cuts it too.
+    "exact_set_in_process_wide": (8.0, [-1.2, -6.0, -1.2, -6.0, 1.2, 6.0, 1.2, 6.0]),
 }
 
 
@@ -474,12 +478,16 @@ def bench_exact_in_process(model: Path, n: int) -> dict[str, dict]:
     # The same set with the projection evaluated at every node (service.refine off), interleaved
     # with the served engine's runs so that both see the same machine.
     full = FRTEngine(value_model, refine=False)
+    # The same set also cut to the speed-coupled partition (off in the service).
+    notched = FRTEngine(value_model, notch_cut=True)
     out = {}
     for name, (v_start, bounds) in EXACT_CASES.items():
         b = np.array(bounds)
-        variants = (
-            {name: engine, f"{name}_every_node": full} if "moving" in name else {name: engine}
-        )
+        variants = {name: engine}
+        if "moving" in name:
+            variants[f"{name}_every_node"] = full
+        if "wide" in name:
+            variants[f"{name}_notch_cut"] = notched
         times: dict[str, list[float]] = {key: [] for key in variants}
         for e in variants.values():
             e.exact(Pose(0.0, 0.0, 0.0), v_start, b)  # warm-up

@@ -38,6 +38,8 @@ from shapely.geometry.base import BaseGeometry
 from shapely.geometry.polygon import orient
 
 from models.contract import BOUND_COLUMNS, COL, N_INPUTS
+from models.corridor_bound import DIRECTIONS as NOTCH_DIRECTIONS
+from models.corridor_bound import partition_supports
 from models.dynamics import wrap_angle
 from models.outer_bound import (
     SUPPORT_DIRECTIONS,
@@ -63,6 +65,26 @@ from service.refine import coarse_to_fine
 #: conservative set holds the exact one. (Polygons over windows longer than the boxes bulge past
 #: them between sweeps that step sideways: by up to 0.1 m with 0.1 s polygons and 0.05 s boxes.)
 SWEEPS_PER_WINDOW = 4
+
+#: The notch cut (``FRTEngine(notch_cut=True)``, off by default): instants whose heading interval
+#: passes NOTCH_HEADING (the car may head backwards, so the set may have a notch behind it) are
+#: cut to the speed-coupled partition of NOTCH_BINS final-heading bins, its speed programmes on
+#: NOTCH_STEPS sub-intervals (``models.corridor_bound.partition_supports``).
+NOTCH_HEADING = math.pi / 2
+NOTCH_BINS = 8
+NOTCH_STEPS = 20
+
+
+@dataclass(frozen=True)
+class NotchCut:
+    """The partition's supports at the instants of a set it cuts (``cut``; [J, B, M] and [J, B]
+    ``empty`` bins, rows of other instants unused), and how far a car moves in half an instant."""
+
+    cut: np.ndarray
+    supports: np.ndarray
+    empty: np.ndarray
+    grow_m: float
+
 
 #: Slice spacing when the distilled projection network is present (its level is calibrated on the
 #: 0.05 s grid, which contains this one).
@@ -400,8 +422,13 @@ class FieldTubeSet(FRTSet):
         bound_rows: list[int],
         outer: BoxTubeSet,
         coarse: np.ndarray | None = None,
+        notch: NotchCut | None = None,
     ) -> None:
         super().__init__(pose, slice_dt, horizon_s, len(instant), conservative=False)
+        #: If set, every set drawn is also cut to the partition (``_notch_*``).
+        self.notch = notch
+        self._notch_regions: dict[int, BaseGeometry] = {}
+        self._notch_tubes: dict[int, BaseGeometry] = {}
         self.lattice = lattice
         self.instant = instant
         self.sweep = sweep
@@ -439,9 +466,46 @@ class FieldTubeSet(FRTSet):
         unresolved = self._unresolved_sweeps(j)
         if unresolved:
             k_set = shapely.union(k_set, self._unresolved_hull(unresolved).intersection(outer))
+        if self.notch is not None:
+            k_set = k_set.intersection(self._notch_tube(j))
         with self._lock:
             self._tubes[j] = k_set
         return k_set
+
+    def _notch_region(self, j: int) -> BaseGeometry:
+        """Every position reachable within half an instant of s_j: the partition's bins where the
+        set is cut at s_j, else the instant's convex outer polygon, grown by how far a car moves
+        in half an instant."""
+        with self._lock:
+            cached = self._notch_regions.get(j)
+        if cached is not None:
+            return cached
+        notch = self.notch
+        assert notch is not None
+        if notch.cut[j]:
+            kept = notch.supports[j][~notch.empty[j]]
+            polygons = half_plane_polygons(NOTCH_DIRECTIONS, kept)
+            region = shapely.union_all([shapely.Polygon(p) for p in polygons])
+        else:
+            region = shapely.Polygon(self.bound.polygons_at([self.bound_rows[j]])[0])
+        region = region.buffer(notch.grow_m)
+        with self._lock:
+            self._notch_regions[j] = region
+        return region
+
+    def _notch_tube(self, j: int) -> BaseGeometry:
+        """Every position reached during [0, s_j]: the union of the instants' regions up to s_j
+        (grown from the largest union already built)."""
+        with self._lock:
+            built = dict(self._notch_tubes)
+        if j in built:
+            return built[j]
+        start = max((i for i in built if i < j), default=-1)
+        parts = [self._notch_region(i) for i in range(start + 1, j + 1)]
+        tube = shapely.union_all(parts if start < 0 else [built[start], *parts])
+        with self._lock:
+            self._notch_tubes[j] = tube
+        return tube
 
     def missing_tubes(self, indices: list[int]) -> list[int]:
         with self._lock:
@@ -525,6 +589,8 @@ class FieldTubeSet(FRTSet):
         if self.coarse[j] or not k_set.is_empty:
             polygon = shapely.Polygon(self.bound.polygons_at([self.bound_rows[j]])[0])
             k_set = polygon if self.coarse[j] else k_set.intersection(polygon)
+        if self.notch is not None and self.notch.cut[j]:
+            k_set = k_set.intersection(self._notch_region(j))
         with self._lock:
             self._slices[j] = k_set
         return k_set
@@ -545,6 +611,10 @@ class FieldTubeSet(FRTSet):
             if not k_set.is_empty:
                 k_set = k_set.buffer(CORNER_CHORD * self.lattice.step, quad_segs=4)
             k_set = k_set.intersection(polygon)
+        if self.notch is not None and (self.notch.cut[j] or self.notch.cut[j - 1]):
+            k_set = k_set.intersection(
+                shapely.union(self._notch_region(j - 1), self._notch_region(j))
+            )
         with self._lock:
             self._intervals[j] = k_set
         return k_set
@@ -616,8 +686,12 @@ class FRTEngine:
         outer_step_s: float = 0.025,
         projection: bool = True,
         refine: bool = True,
+        notch_cut: bool = False,
     ) -> None:
         self.model = model
+        #: Cut exact sets to the speed-coupled partition where a notch is possible (``NotchCut``;
+        #: ~20-30 ms more per such set, measured by ``python scripts/bench.py``'s exact cases).
+        self.notch_cut = notch_cut
         #: Evaluate the projection coarse-to-fine (``service.refine``).
         self.refine = refine
         self.card = model.card
@@ -879,10 +953,39 @@ class FRTEngine:
             rows,
             self._box_tube(pose, ob),
             coarse=coarse,
+            notch=self._notch(ob, rows, v_start, bounds) if self.notch_cut else None,
         )
         frt.evaluations = evaluations
         frt.tube(self.n_slices - 1)
         return frt
+
+    def _notch(
+        self, ob: OuterBound, rows: list[int], v_start: float, bounds: np.ndarray
+    ) -> NotchCut | None:
+        """The partition at the instants whose heading interval passes +-NOTCH_HEADING (None if
+        there are none: no notch is possible)."""
+        heading = ob.heading[rows]
+        cut = (heading[:, 1] > NOTCH_HEADING) | (heading[:, 0] < -NOTCH_HEADING)
+        cut[0] = False
+        if not cut.any():
+            return None
+        support, empty = partition_supports(
+            v_start,
+            bounds,
+            ob.times[rows][cut],
+            NOTCH_BINS,
+            1,
+            steps=NOTCH_STEPS,
+            coupled_speed=True,
+        )
+        supports = np.full((len(rows), NOTCH_BINS, len(NOTCH_DIRECTIONS)), np.inf)
+        empties = np.zeros((len(rows), NOTCH_BINS), dtype=bool)
+        supports[cut], empties[cut] = support, empty
+        # shapely's buffer inscribes its arcs (8 segments a quarter): divided by cos(pi / 32) it
+        # still holds the true disc.
+        speed = float(ob.sweep_speed_max.max())
+        grow = speed * self.slice_dt / 2 / math.cos(math.pi / 32) + 1e-6
+        return NotchCut(cut=cut, supports=supports, empty=empties, grow_m=grow)
 
     def levels(self, ob: OuterBound, rows: list[int]) -> np.ndarray:
         """The calibrated level of W (or V) at each instant ``ob.times[rows]``."""

@@ -42,14 +42,15 @@ _LOCK_TYPES = (type(threading.Lock()), type(threading.RLock()))
 _engine: FRTEngine | None = None
 
 
-#: Caches a set rebuilds on demand, not sent back: the outer windows' ~30 polygons would stay
-#: in the server's FRT cache as objects its garbage collector walks (service.engine.SliceFields).
-_NOT_SENT = {"_outer_windows": None}
+#: Caches a set rebuilds on demand, not sent back (each name's empty value made anew per set):
+#: the outer windows' and the notch cut's ~30 polygons would stay in the server's FRT cache as
+#: objects its garbage collector walks (service.engine.SliceFields).
+_NOT_SENT = {"_outer_windows": lambda: None, "_notch_regions": dict}
 
 
 def _reduce_frt_set(frt: FRTSet) -> tuple[Any, ...]:
     state = {k: (None if isinstance(v, _LOCK_TYPES) else v) for k, v in vars(frt).items()}
-    state.update({k: v for k, v in _NOT_SENT.items() if k in state})
+    state.update({k: empty() for k, empty in _NOT_SENT.items() if k in state})
     locks = [k for k, v in vars(frt).items() if isinstance(v, _LOCK_TYPES)]
     return _rebuild_frt_set, (type(frt), state, locks)
 
@@ -86,15 +87,17 @@ class ExactTask:
         return engine.exact(self.pose, self.v_start, self.bounds)
 
 
-def init_worker(model_path: str, nice: int, parent_pid: int, policy: str = "idle") -> None:
-    """Process initializer: a scheduling policy below the server's, load the engine, warm it,
-    watch the parent."""
+def init_worker(
+    model_path: str, nice: int, parent_pid: int, policy: str = "idle", notch_cut: bool = False
+) -> None:
+    """Process initializer: a scheduling policy below the server's, load the engine (configured as
+    the server's), warm it, watch the parent."""
     global _engine
     keep_freed_memory()
     lower_priority(policy, nice)
     from service.model_runtime import ValueModel
 
-    _engine = FRTEngine(ValueModel.load(Path(model_path)))
+    _engine = FRTEngine(ValueModel.load(Path(model_path)), notch_cut=notch_cut)
     # The first runtime call and contour are slower than the rest: take them before any request.
     with contextlib.suppress(Exception):  # bounds outside a model's ranges: warm on a real set
         warm_up_task(_engine)()
@@ -137,13 +140,18 @@ def _exit_with_parent(parent_pid: int) -> None:
 
 
 def start_pool(
-    model_path: Path, workers: int, nice: int, policy: str = "idle", timeout_s: float = 120.0
+    model_path: Path,
+    workers: int,
+    nice: int,
+    policy: str = "idle",
+    timeout_s: float = 120.0,
+    notch_cut: bool = False,
 ) -> PipePool:
     """A pool of ``workers`` processes, each with the engine loaded and warmed and run below the
     server (:func:`lower_priority`); raises if they cannot all be started within ``timeout_s``."""
     return PipePool(
         workers,
         initializer=init_worker,
-        initargs=(str(model_path), nice, os.getpid(), policy),
+        initargs=(str(model_path), nice, os.getpid(), policy, notch_cut),
         timeout_s=timeout_s,
     )

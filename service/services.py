@@ -124,7 +124,7 @@ class Services:
         start = time.perf_counter()
         try:
             model = ValueModel.load(path)
-            engine = FRTEngine(model)
+            engine = FRTEngine(model, notch_cut=self.settings.frt_notch_cut)
         except Exception as exc:  # a missing or broken model must not stop the service
             self.model_error = f"model not loaded: {exc}"
             log.error("model not loaded", extra={"model_path": str(path), "error": str(exc)})
@@ -152,7 +152,11 @@ class Services:
         workers = self.scheduler.workers
         try:
             pool = start_pool(
-                path, workers, self.settings.frt_worker_nice, self.settings.frt_worker_policy
+                path,
+                workers,
+                self.settings.frt_worker_nice,
+                self.settings.frt_worker_policy,
+                notch_cut=engine.notch_cut,
             )
         except Exception as exc:
             log.warning(

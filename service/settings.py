@@ -53,6 +53,10 @@ class Settings(BaseSettings):
     frt_worker_policy: Literal["idle", "batch"] = "idle"
     #: Niceness added to "batch" workers (19 kept the sustained bench's checks faster than 5 did).
     frt_worker_nice: int = Field(19, ge=0, le=19)
+    #: Cut exact sets whose heading interval passes +-pi/2 (the car may turn round) to the
+    #: speed-coupled partition (``service.engine.NotchCut``): tighter, still sound sets behind
+    #: such cars, ~30-45 ms more per such set in the worker.
+    frt_notch_cut: bool = False
     #: Exact FRTs kept in memory, keyed by (agent, FRT version, inputs): at most the two latest
     #: versions of each agent (``service.scheduler.VERSIONS_PER_AGENT``); least recently used go first.
     frt_cache_size: int = Field(1024, ge=1)

@@ -1,0 +1,86 @@
+"""FRTEngine(notch_cut=True): exact sets also cut to the speed-coupled partition where the car may
+head backwards. The cut must keep every simulated position the uncut set holds (tubes up to each
+time, slices at the instants, intervals between them), stay inside the uncut set, and cut."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import shapely
+
+from models.eval_settings import SETTINGS
+from models.rollout import sample_reference_schedules
+from service.engine import FRTEngine, Pose
+from service.model_runtime import ValueModel
+from tests.fixtures.trajectories import simulate
+
+MODEL = Path(__file__).resolve().parent.parent / "models" / "frt_unicycle.onnx"
+NAMED = {s.name: s for s in SETTINGS}
+
+
+@pytest.fixture(scope="module")
+def engines() -> tuple[FRTEngine, FRTEngine]:
+    model = ValueModel.load(MODEL, threads=1)
+    return FRTEngine(model), FRTEngine(model, notch_cut=True)
+
+
+def _covered(geometry: shapely.Geometry, state: tuple[np.ndarray, ...]) -> np.ndarray:
+    return shapely.covers(geometry, shapely.points(np.stack([state[0], state[1]], axis=1)))
+
+
+@pytest.mark.parametrize("name", ["urban_wide", "shrinking_steering_only"])
+def test_the_cut_keeps_every_simulated_position_and_cuts(engines, name: str) -> None:
+    plain, notched = engines
+    setting = NAMED[name]
+    bounds = setting.bounds()
+    uncut = plain.exact(Pose(0.0, 0.0, 0.0), setting.v_start, bounds)
+    cut = notched.exact(Pose(0.0, 0.0, 0.0), setting.v_start, bounds)
+    last = cut.n_slices - 1
+    assert cut.tube(last).difference(uncut.tube(last)).area < 1e-6
+    assert uncut.tube(last).area - cut.tube(last).area > 50.0  # m²: it cuts the notch
+    _, trace = simulate(setting.v_start, bounds, 1500, np.random.default_rng(11),
+                        sample_reference_schedules)  # fmt: skip
+    per_instant = round(cut.slice_dt / float(trace[0][0][0]))  # recorded steps per instant
+    for k, (tau, state) in enumerate(trace, start=1):
+        s = float(tau[0])
+        j = cut.tube_index(s)
+        assert not (_covered(uncut.tube(j), state) & ~_covered(cut.tube(j), state)).any(), (s, j)
+        if k % per_instant == 0:  # an instant: its slice
+            i = k // per_instant
+            assert not (_covered(uncut.slice(i), state) & ~_covered(cut.slice(i), state)).any()
+        elif k % 7 == 0:  # between instants: the interval that holds it
+            i = k // per_instant + 1
+            assert not (
+                _covered(uncut.interval(i), state) & ~_covered(cut.interval(i), state)
+            ).any(), (s, i)
+
+
+def test_a_set_that_cannot_turn_round_is_not_cut(engines) -> None:
+    plain, notched = engines
+    setting = NAMED["urban_narrow"]
+    uncut = plain.exact(Pose(0.0, 0.0, 0.0), setting.v_start, setting.bounds())
+    cut = notched.exact(Pose(0.0, 0.0, 0.0), setting.v_start, setting.bounds())
+    assert cut.notch is None
+    assert cut.tube(cut.n_slices - 1).equals(uncut.tube(uncut.n_slices - 1))
+
+
+def test_worker_processes_cut_as_the_server_engine_does(engines) -> None:
+    """``FRT_FRT_NOTCH_CUT`` reaches the workers (``start_pool(notch_cut=...)``): a worker's set
+    of a wide setting is cut like the server's own engine's, and comes back without the cut's
+    polygons (rebuilt on demand, not kept for the garbage collector to walk)."""
+    from service.exact_worker import ExactTask, start_pool
+
+    _, notched = engines
+    setting = NAMED["urban_wide"]
+    pool = start_pool(MODEL, workers=1, nice=0, notch_cut=True)
+    try:
+        task = ExactTask(Pose(4.0, -1.0, 0.3), setting.v_start, setting.bounds(), notched)
+        there = pool.submit(task).result(timeout=120)
+    finally:
+        pool.shutdown()
+    here = task()
+    assert there.notch is not None and there._notch_regions == {}
+    assert there.tube(there.n_slices - 1).equals(here.tube(here.n_slices - 1))
+    assert there.slice(25).equals(here.slice(25))

@@ -10,6 +10,9 @@ it with httpx from this process. Prints medians and p99 for:
    each poll is a request the server answers on the same 2 cores, so polling measured its own
    load too); alternating with the same through one request (the observation with
    ``?wait_frt_ms=``);
+   and the same through one request for an agent whose predictor is unsure of the steering (its
+   steering bounds near +-1 rad/s: the sets ``FRT_FRT_NOTCH_CUT=true`` cuts; the bench passes the
+   caller's ``FRT_*`` environment to the service);
 3. contours for one agent (tube + 3 slices), on a fresh FRT version each time;
 4. sustained: 50 agents observed at 2 Hz while a planner (a process of its own) checks all of
    them at 10 Hz with one multi-agent request per round; a round misses its deadline when its
@@ -92,17 +95,24 @@ def running_service(model: Path):
         proc.wait(timeout=10)
 
 
-def prediction(rng: np.random.Generator, steps: int = 6) -> dict:
+def prediction(rng: np.random.Generator, steps: int = 6, steering_var: float = 0.01) -> dict:
     mean = [[float(rng.normal(0, 0.05)), float(rng.normal(0, 0.3))] for _ in range(steps)]
-    cov = [[[0.01, 0.0], [0.0, 0.25]] for _ in range(steps)]
+    cov = [[[steering_var, 0.0], [0.0, 0.25]] for _ in range(steps)]
     return {"dt": 0.5, "mean": mean, "cov": cov}
 
 
-def observation(t: float, rng: np.random.Generator, first: bool, x: float = 0.0) -> dict:
+#: A predictor unsure of the steering: the agent's steering bounds come out near +-1 rad/s, so it
+#: may turn round within the horizon (and FRT_FRT_NOTCH_CUT cuts its sets).
+WIDE_STEERING_VAR = 50.0
+
+
+def observation(
+    t: float, rng: np.random.Generator, first: bool, x: float = 0.0, steering_var: float = 0.01
+) -> dict:
     body = {
         "timestamp": t,
         "state": {"x": x, "y": 0.0, "heading": 0.0, "speed": float(rng.uniform(5, 12))},
-        "prediction": prediction(rng),
+        "prediction": prediction(rng, steering_var=steering_var),
         "observed_action": None
         if first
         else {"steering_rate": float(rng.normal(0, 0.1)), "acceleration": float(rng.normal(0, 1))},
@@ -188,6 +198,27 @@ def bench_observe_to_ready(client: httpx.Client, n: int) -> dict[str, dict]:
         "observation_to_frt_ready": stats(two),
         "observation_to_frt_ready_one_request": stats(one),
     }
+
+
+def bench_observe_to_ready_wide(client: httpx.Client, n: int) -> dict:
+    """The same through one request for an agent whose predictor is unsure of the steering
+    (WIDE_STEERING_VAR): with FRT_FRT_NOTCH_CUT=true its sets are the ones cut."""
+    rng = np.random.default_rng(2)
+    wide = WIDE_STEERING_VAR
+    client.post("/v1/agents/bench-wide/observations", json=observation(0.0, rng, True, 0.0, wide))
+    times = []
+    for i in range(1, n + 1):
+        t0 = time.perf_counter()
+        r = client.post(
+            "/v1/agents/bench-wide/observations",
+            json=observation(float(i), rng, False, 0.0, wide),
+            params={"wait_frt_ms": 1000},
+        )
+        r.raise_for_status()
+        while not r.json()["frt_ready"]:
+            r = client.get("/v1/agents/bench-wide", params={"wait_frt_ms": 1000})
+        times.append(time.perf_counter() - t0)
+    return stats(times)
 
 
 def bench_contours(client: httpx.Client, n: int) -> dict:
@@ -554,9 +585,12 @@ def main() -> None:
                 results["collision_check_20pt_warm"] = bench_collision(client, args.checks)
                 results["http_floor_get_healthz"] = bench_http_floor(client, args.checks)
                 results.update(bench_observe_to_ready(client, args.observations))
+                results["observation_to_frt_ready_wide_steering"] = bench_observe_to_ready_wide(
+                    client, args.observations
+                )
                 results["contours_tube_plus_3_slices"] = bench_contours(client, args.observations)
                 # The planner checks every known agent: the sustained case's 50 and no others.
-                for agent in ("bench-cc", "bench-obs", "bench-obs1", "bench-frt"):
+                for agent in ("bench-cc", "bench-obs", "bench-obs1", "bench-wide", "bench-frt"):
                     client.delete(f"/v1/agents/{agent}").raise_for_status()
         transports = (
             ("http", "ws") if args.planner_transport == "both" else (args.planner_transport,)

@@ -43,8 +43,10 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Awaitable, Callable
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import httpx
 import numpy as np
@@ -165,6 +167,17 @@ def bench_http_floor(client: httpx.Client, n: int) -> dict:
     return stats(times)
 
 
+def observe_until_ready(client: httpx.Client, agent: str, body: dict) -> float:
+    """Seconds from sending an observation with ``?wait_frt_ms=`` (answered once its version's
+    exact set is computed) to the exact set being ready."""
+    t0 = time.perf_counter()
+    r = client.post(f"/v1/agents/{agent}/observations", json=body, params={"wait_frt_ms": 1000})
+    r.raise_for_status()
+    while not r.json()["frt_ready"]:  # only after a 1 s wait: counted in full
+        r = client.get(f"/v1/agents/{agent}", params={"wait_frt_ms": 1000})
+    return time.perf_counter() - t0
+
+
 def bench_observe_to_ready(client: httpx.Client, n: int) -> dict[str, dict]:
     """Observation -> exact FRT ready, two ways, alternating on two agents: the observation then a
     waiting ``GET /v1/agents/{id}?wait_frt_ms=``, and the observation alone with ``?wait_frt_ms=``
@@ -184,16 +197,7 @@ def bench_observe_to_ready(client: httpx.Client, n: int) -> dict[str, dict]:
                 break
         two.append(time.perf_counter() - t0)
 
-        t0 = time.perf_counter()
-        r = client.post(
-            "/v1/agents/bench-obs1/observations",
-            json=observation(float(i), rng, False),
-            params={"wait_frt_ms": 1000},
-        )
-        r.raise_for_status()
-        while not r.json()["frt_ready"]:  # only after a 1 s wait: counted in full
-            r = client.get("/v1/agents/bench-obs1", params={"wait_frt_ms": 1000})
-        one.append(time.perf_counter() - t0)
+        one.append(observe_until_ready(client, "bench-obs1", observation(float(i), rng, False)))
     return {
         "observation_to_frt_ready": stats(two),
         "observation_to_frt_ready_one_request": stats(one),
@@ -206,19 +210,12 @@ def bench_observe_to_ready_wide(client: httpx.Client, n: int) -> dict:
     rng = np.random.default_rng(2)
     wide = WIDE_STEERING_VAR
     client.post("/v1/agents/bench-wide/observations", json=observation(0.0, rng, True, 0.0, wide))
-    times = []
-    for i in range(1, n + 1):
-        t0 = time.perf_counter()
-        r = client.post(
-            "/v1/agents/bench-wide/observations",
-            json=observation(float(i), rng, False, 0.0, wide),
-            params={"wait_frt_ms": 1000},
-        )
-        r.raise_for_status()
-        while not r.json()["frt_ready"]:
-            r = client.get("/v1/agents/bench-wide", params={"wait_frt_ms": 1000})
-        times.append(time.perf_counter() - t0)
-    return stats(times)
+    return stats(
+        [
+            observe_until_ready(client, "bench-wide", observation(float(i), rng, False, 0.0, wide))
+            for i in range(1, n + 1)
+        ]
+    )
 
 
 def bench_contours(client: httpx.Client, n: int) -> dict:
@@ -236,27 +233,38 @@ def bench_contours(client: httpx.Client, n: int) -> dict:
     return stats(times)
 
 
-async def _planner(url: str, start_at: float, seconds: float, deadline_ms: float) -> dict:
-    """Check all agents at 10 Hz with one multi-agent request each (API.md: POST
-    /v1/collision-check), from ``start_at`` (time.time()) for ``seconds``."""
+async def _rounds(
+    send: Callable[[int, dict], Awaitable[Any]],
+    parse: Callable[[Any], tuple[dict | None, float | None]],
+    start_at: float,
+    seconds: float,
+    deadline_ms: float,
+) -> dict:
+    """A planner's rounds at 10 Hz from ``start_at`` (time.time()) for ``seconds``: each sends a
+    check of all agents (``send(k, body)``), timed up to its answer; ``parse`` gives the answer's
+    result (None if it failed) and the server's own time, if the transport says it."""
     check_times: list[float] = []
     server_times: list[float] = []
     misses = conservative = errors = 0
-    async with httpx.AsyncClient(base_url=url, timeout=5) as client:
-        await asyncio.sleep(max(0.0, start_at - time.time()))
-        start = time.monotonic()
-        while time.monotonic() - start < seconds:
-            t0 = time.perf_counter()
-            body = {"trajectory": trajectory(1.0), "mode": "tube", "deadline_ms": deadline_ms}
-            r = await client.post("/v1/collision-check", json=body)
-            dt = time.perf_counter() - t0
-            check_times.append(dt)
-            server_times.append(server_seconds(r))
-            errors += r.status_code != 200
-            if r.status_code == 200:
-                conservative += r.json()["conservative"]
-            misses += dt * 1e3 > deadline_ms
-            await asyncio.sleep(max(0.0, 0.1 - dt))
+    await asyncio.sleep(max(0.0, start_at - time.time()))
+    start = time.monotonic()
+    k = 0
+    while time.monotonic() - start < seconds:
+        t0 = time.perf_counter()
+        body = {"trajectory": trajectory(1.0), "mode": "tube", "deadline_ms": deadline_ms}
+        raw = await send(k, body)
+        dt = time.perf_counter() - t0
+        check_times.append(dt)
+        result, server_s = parse(raw)
+        if server_s is not None:
+            server_times.append(server_s)
+        if result is None:
+            errors += 1
+        else:
+            conservative += result["conservative"]
+        misses += dt * 1e3 > deadline_ms
+        k += 1
+        await asyncio.sleep(max(0.0, 0.1 - dt))
     return {
         "check_times": check_times,
         "server_times": server_times,
@@ -266,38 +274,39 @@ async def _planner(url: str, start_at: float, seconds: float, deadline_ms: float
     }
 
 
+async def _planner(url: str, start_at: float, seconds: float, deadline_ms: float) -> dict:
+    """Check all agents at 10 Hz with one multi-agent request each (API.md: POST
+    /v1/collision-check); the server's own time from each response's Server-Timing."""
+    async with httpx.AsyncClient(base_url=url, timeout=5) as client:
+
+        def parse(r: httpx.Response) -> tuple[dict | None, float]:
+            return (r.json() if r.status_code == 200 else None), server_seconds(r)
+
+        return await _rounds(
+            lambda _k, body: client.post("/v1/collision-check", json=body),
+            parse,
+            start_at,
+            seconds,
+            deadline_ms,
+        )
+
+
 async def _planner_ws(url: str, start_at: float, seconds: float, deadline_ms: float) -> dict:
     """The same planner over the WebSocket stream (``WS /v1/stream``, op ``collision_check``): one
     socket, no HTTP request per round. The stream has no Server-Timing, so only end to end."""
     import websockets
 
-    check_times: list[float] = []
-    misses = conservative = errors = 0
-    async with websockets.connect(url.replace("http://", "ws://") + "/v1/stream") as socket:
-        await asyncio.sleep(max(0.0, start_at - time.time()))
-        start = time.monotonic()
-        k = 0
-        while time.monotonic() - start < seconds:
-            t0 = time.perf_counter()
-            body = {"trajectory": trajectory(1.0), "mode": "tube", "deadline_ms": deadline_ms}
-            await socket.send(json.dumps({"id": k, "op": "collision_check", **body}))
-            answer = await socket.recv()
-            dt = time.perf_counter() - t0
-            check_times.append(dt)
-            message = json.loads(answer)
-            errors += not message["ok"]
-            if message["ok"]:
-                conservative += message["result"]["conservative"]
-            misses += dt * 1e3 > deadline_ms
-            k += 1
-            await asyncio.sleep(max(0.0, 0.1 - dt))
-    return {
-        "check_times": check_times,
-        "server_times": [],
-        "misses": misses,
-        "conservative": conservative,
-        "errors": errors,
-    }
+    async with websockets.connect(url.replace("http://", "ws://") + "/v1/stream") as stream:
+
+        async def send(k: int, body: dict) -> str:
+            await stream.send(json.dumps({"id": k, "op": "collision_check", **body}))
+            return await stream.recv()
+
+        def parse(text: str) -> tuple[dict | None, None]:
+            message = json.loads(text)
+            return (message["result"] if message["ok"] else None), None
+
+        return await _rounds(send, parse, start_at, seconds, deadline_ms)
 
 
 def server_seconds(response: httpx.Response) -> float:

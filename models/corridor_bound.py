@@ -276,6 +276,22 @@ def sample_bounded_states(
     return x[keep], bound[keep]
 
 
+def bins_union(support: np.ndarray, empty: np.ndarray, directions: np.ndarray) -> shapely.Geometry:
+    """The union of one instant's bin polygons (supports [B, M] in ``directions``, [B] empty bins
+    skipped): every position reachable then (:func:`partition_supports`)."""
+    polygons = half_plane_polygons(directions, support[~empty])
+    return shapely.union_all([shapely.Polygon(p) for p in polygons])
+
+
+def grown_to_hold(
+    geometry: shapely.Geometry, distance: float, quad_segs: int = 16
+) -> shapely.Geometry:
+    """``geometry`` buffered so that it holds every point within ``distance`` of it: shapely
+    inscribes its arcs (``quad_segs`` segments a quarter circle), so the radius is divided by the
+    cosine of half a segment's angle."""
+    return geometry.buffer(distance / math.cos(math.pi / (4 * quad_segs)) + 1e-6, quad_segs)
+
+
 def partition_tubes(
     v_start: float,
     bounds: np.ndarray,
@@ -314,20 +330,16 @@ def partition_tubes(
     convex = (
         outer_bound(v_start, bounds, initial_set=initial_set) if not partitioned.all() else None
     )
-    # shapely's buffer inscribes its arcs (16 segments a quarter): divided by cos(pi / 64) it
-    # still holds the true disc.
-    arc = math.cos(math.pi / 64)
-    grow = speed_max * instant_s / 2 / arc + 1e-6
-    parts = [shapely.Point(0.0, 0.0).buffer(initial_set.radius_m / arc + grow)]
+    grow = speed_max * instant_s / 2
+    parts = [grown_to_hold(shapely.Point(0.0, 0.0), initial_set.radius_m + grow)]
     j = 0
     for s in instants:
         if convex is not None and s < partitioned_from_s - 1e-9:
             region = shapely.Polygon(convex.polygons_at([convex.nearest_row(s)])[0])
         else:
-            polygons = half_plane_polygons(directions, support[j][~empty[j]])
-            region = shapely.union_all([shapely.Polygon(p) for p in polygons])
+            region = bins_union(support[j], empty[j], directions)
             j += 1
-        parts.append(region.buffer(grow))
+        parts.append(grown_to_hold(region, grow))
     return [shapely.union_all(parts[: round(t / instant_s) + 1]) for t in t_ends]
 
 

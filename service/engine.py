@@ -39,7 +39,7 @@ from shapely.geometry.polygon import orient
 
 from models.contract import BOUND_COLUMNS, COL, N_INPUTS
 from models.corridor_bound import DIRECTIONS as NOTCH_DIRECTIONS
-from models.corridor_bound import partition_supports
+from models.corridor_bound import bins_union, grown_to_hold, partition_supports
 from models.dynamics import wrap_angle
 from models.outer_bound import (
     SUPPORT_DIRECTIONS,
@@ -78,7 +78,8 @@ NOTCH_STEPS = 20
 @dataclass(frozen=True)
 class NotchCut:
     """The partition's supports at the instants of a set it cuts (``cut``; [J, B, M] and [J, B]
-    ``empty`` bins, rows of other instants unused), and how far a car moves in half an instant."""
+    ``empty`` bins, rows of other instants unused), and the farthest a car moves in half an
+    instant."""
 
     cut: np.ndarray
     supports: np.ndarray
@@ -483,12 +484,10 @@ class FieldTubeSet(FRTSet):
         notch = self.notch
         assert notch is not None
         if notch.cut[j]:
-            kept = notch.supports[j][~notch.empty[j]]
-            polygons = half_plane_polygons(NOTCH_DIRECTIONS, kept)
-            region = shapely.union_all([shapely.Polygon(p) for p in polygons])
+            region = bins_union(notch.supports[j], notch.empty[j], NOTCH_DIRECTIONS)
         else:
             region = shapely.Polygon(self.bound.polygons_at([self.bound_rows[j]])[0])
-        region = region.buffer(notch.grow_m)
+        region = grown_to_hold(region, notch.grow_m)
         with self._lock:
             self._notch_regions[j] = region
         return region
@@ -690,7 +689,7 @@ class FRTEngine:
     ) -> None:
         self.model = model
         #: Cut exact sets to the speed-coupled partition where a notch is possible (``NotchCut``;
-        #: ~20-30 ms more per such set, measured by ``python scripts/bench.py``'s exact cases).
+        #: a wide set 46 ms instead of 11 in-process, ``make bench``'s exact cases).
         self.notch_cut = notch_cut
         #: Evaluate the projection coarse-to-fine (``service.refine``).
         self.refine = refine
@@ -981,10 +980,7 @@ class FRTEngine:
         supports = np.full((len(rows), NOTCH_BINS, len(NOTCH_DIRECTIONS)), np.inf)
         empties = np.zeros((len(rows), NOTCH_BINS), dtype=bool)
         supports[cut], empties[cut] = support, empty
-        # shapely's buffer inscribes its arcs (8 segments a quarter): divided by cos(pi / 32) it
-        # still holds the true disc.
-        speed = float(ob.sweep_speed_max.max())
-        grow = speed * self.slice_dt / 2 / math.cos(math.pi / 32) + 1e-6
+        grow = float(ob.sweep_speed_max.max()) * self.slice_dt / 2
         return NotchCut(cut=cut, supports=supports, empty=empties, grow_m=grow)
 
     def levels(self, ob: OuterBound, rows: list[int]) -> np.ndarray:

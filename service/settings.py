@@ -55,7 +55,7 @@ class Settings(BaseSettings):
     frt_worker_nice: int = Field(19, ge=0, le=19)
     #: Cut exact sets whose heading interval passes +-pi/2 (the car may turn round) to the
     #: speed-coupled partition (``service.engine.NotchCut``): tighter, still sound sets behind
-    #: such cars, ~30-45 ms more per such set in the worker.
+    #: such cars, ~35 ms more per such set in the worker (``make bench``).
     frt_notch_cut: bool = False
     #: Exact FRTs kept in memory, keyed by (agent, FRT version, inputs): at most the two latest
     #: versions of each agent (``service.scheduler.VERSIONS_PER_AGENT``); least recently used go first.

@@ -232,6 +232,12 @@ class FRTSet:
         tubes[:] = [self.tube(int(j)) for j in unique]
         return signed_distances(tubes, rows, xy)
 
+    def build_notch_tubes(self) -> None:
+        """Every tube's cut region (``_notch_tube``), built in increasing order (each from the one
+        before)."""
+        for j in range(self.n_slices):
+            self._notch_tube(j)
+
     def missing_tubes(self, indices: list[int]) -> list[int]:
         """The tubes among ``indices`` not drawn yet (none where tubes cost nothing to draw)."""
         return []
@@ -424,10 +430,14 @@ class FieldTubeSet(FRTSet):
         outer: BoxTubeSet,
         coarse: np.ndarray | None = None,
         notch: NotchCut | None = None,
+        notch_possible: bool = False,
     ) -> None:
         super().__init__(pose, slice_dt, horizon_s, len(instant), conservative=False)
         #: If set, every set drawn is also cut to the partition (``_notch_*``).
         self.notch = notch
+        #: Whether some instant's heading interval passes +-NOTCH_HEADING: a cut could tighten
+        #: this set (``FRTEngine.exact(notch_cut=True)``).
+        self.notch_possible = notch_possible
         self._notch_regions: dict[int, BaseGeometry] = {}
         self._notch_tubes: dict[int, BaseGeometry] = {}
         self.lattice = lattice
@@ -505,6 +515,12 @@ class FieldTubeSet(FRTSet):
         with self._lock:
             self._notch_tubes[j] = tube
         return tube
+
+    def build_notch_tubes(self) -> None:
+        """Every tube's cut region (``_notch_tube``), built in increasing order (each from the one
+        before)."""
+        for j in range(self.n_slices):
+            self._notch_tube(j)
 
     def missing_tubes(self, indices: list[int]) -> list[int]:
         with self._lock:
@@ -860,9 +876,15 @@ class FRTEngine:
         x[:, 6:] = bounds
         return self.model.evaluate_projection(x), len(px)
 
-    def exact(self, pose: Pose, v_start: float, bounds: np.ndarray) -> FieldTubeSet:
+    def exact(
+        self, pose: Pose, v_start: float, bounds: np.ndarray, notch_cut: bool | None = None
+    ) -> FieldTubeSet:
         """The model's set {W <= level} ∩ outer bound, sampled per slice (see FieldTubeSet); the
         whole tube is built at once (collision checks need it first), the rest on demand.
+        ``notch_cut`` (default: the engine's) also cuts it to the speed-coupled partition where
+        a notch is possible (``NotchCut``), and then builds every tube's cut region at once (a
+        set cut in a worker process reaches the server with them: a tube drawn there is one
+        intersection more).
 
         Every instant's fields are computed together on windows padded to one shape
         (``service.field_stack``)."""
@@ -870,6 +892,8 @@ class FRTEngine:
         ob = self.outer(v_start, bounds)
         k = self.outer_steps_per_slice
         rows = [j * k for j in range(self.n_slices)]
+        cut = self.notch_instants(ob, rows)
+        cut_now = (self.notch_cut if notch_cut is None else notch_cut) and bool(cut.any())
         box_at = ob.box_at[rows[1:]]
         # The node budget is spread over the slices' areas (an ellipse in each outer box).
         areas = (box_at[:, 1] - box_at[:, 0]) * (box_at[:, 3] - box_at[:, 2]) * (math.pi / 4)
@@ -952,22 +976,33 @@ class FRTEngine:
             rows,
             self._box_tube(pose, ob),
             coarse=coarse,
-            notch=self._notch(ob, rows, v_start, bounds) if self.notch_cut else None,
+            notch=self._notch(ob, rows, v_start, bounds, cut) if cut_now else None,
+            notch_possible=bool(cut.any()),
         )
         frt.evaluations = evaluations
         frt.tube(self.n_slices - 1)
+        if frt.notch is not None:
+            frt.build_notch_tubes()
         return frt
 
-    def _notch(
-        self, ob: OuterBound, rows: list[int], v_start: float, bounds: np.ndarray
-    ) -> NotchCut | None:
-        """The partition at the instants whose heading interval passes +-NOTCH_HEADING (None if
-        there are none: no notch is possible)."""
+    @staticmethod
+    def notch_instants(ob: OuterBound, rows: list[int]) -> np.ndarray:
+        """Per instant ``ob.times[rows]``, whether its heading interval passes +-NOTCH_HEADING
+        (the car may head backwards, so the set may have a notch behind it)."""
         heading = ob.heading[rows]
         cut = (heading[:, 1] > NOTCH_HEADING) | (heading[:, 0] < -NOTCH_HEADING)
         cut[0] = False
-        if not cut.any():
-            return None
+        return cut
+
+    def _notch(
+        self,
+        ob: OuterBound,
+        rows: list[int],
+        v_start: float,
+        bounds: np.ndarray,
+        cut: np.ndarray,
+    ) -> NotchCut:
+        """The partition at the instants ``cut`` (``notch_instants``)."""
         support, empty = partition_supports(
             v_start,
             bounds,

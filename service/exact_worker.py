@@ -23,7 +23,7 @@ import logging
 import os
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -69,27 +69,33 @@ for _cls in (FieldTubeSet, BoxTubeSet):
 
 @dataclass
 class ExactTask:
-    """``engine.exact(pose, v_start, bounds)``: with the given engine (threads) or, once pickled to
-    a worker process, with that process's own."""
+    """``engine.exact(pose, v_start, bounds, notch_cut)``: with the given engine (threads) or, once
+    pickled to a worker process, with that process's own."""
 
     pose: Pose
     v_start: float
     bounds: np.ndarray
     engine: FRTEngine | None = field(default=None, repr=False, compare=False)
+    notch_cut: bool = False
 
     def __reduce__(self) -> tuple[Any, ...]:
-        return ExactTask, (self.pose, self.v_start, self.bounds)
+        return ExactTask, (self.pose, self.v_start, self.bounds, None, self.notch_cut)
 
     def __call__(self) -> FRTSet:
         engine = self.engine if self.engine is not None else _engine
         if engine is None:
             raise RuntimeError("no engine in this process")
-        return engine.exact(self.pose, self.v_start, self.bounds)
+        return engine.exact(self.pose, self.v_start, self.bounds, notch_cut=self.notch_cut)
+
+    def refinement(self, result: object) -> ExactTask | None:
+        """The same set cut to the speed-coupled partition, if ``result`` (this task's set) is
+        uncut and could be cut (``FieldTubeSet.notch_possible``); else None."""
+        if self.notch_cut or not getattr(result, "notch_possible", False):
+            return None
+        return replace(self, notch_cut=True)
 
 
-def init_worker(
-    model_path: str, nice: int, parent_pid: int, policy: str = "idle", notch_cut: bool = False
-) -> None:
+def init_worker(model_path: str, nice: int, parent_pid: int, policy: str = "idle") -> None:
     """Process initializer: a scheduling policy below the server's, load the engine (configured as
     the server's), warm it, watch the parent."""
     global _engine
@@ -97,7 +103,7 @@ def init_worker(
     lower_priority(policy, nice)
     from service.model_runtime import ValueModel
 
-    _engine = FRTEngine(ValueModel.load(Path(model_path)), notch_cut=notch_cut)
+    _engine = FRTEngine(ValueModel.load(Path(model_path)))
     # The first runtime call and contour are slower than the rest: take them before any request.
     with contextlib.suppress(Exception):  # bounds outside a model's ranges: warm on a real set
         warm_up_task(_engine)()
@@ -145,13 +151,12 @@ def start_pool(
     nice: int,
     policy: str = "idle",
     timeout_s: float = 120.0,
-    notch_cut: bool = False,
 ) -> PipePool:
     """A pool of ``workers`` processes, each with the engine loaded and warmed and run below the
     server (:func:`lower_priority`); raises if they cannot all be started within ``timeout_s``."""
     return PipePool(
         workers,
         initializer=init_worker,
-        initargs=(str(model_path), nice, os.getpid(), policy, notch_cut),
+        initargs=(str(model_path), nice, os.getpid(), policy),
         timeout_s=timeout_s,
     )

@@ -8,6 +8,10 @@ check waits for that set only until its deadline (:meth:`FRTScheduler.wait`) and
 from the engine's conservative set. Results are keyed by agent, version *and* a digest of the inputs,
 so a cached set can never answer for other inputs (e.g. an agent deleted and created again, whose
 versions restart, or another replica's state).
+
+A set may be *refined* after it is ready (:attr:`FRTScheduler.refinement`): a tighter set of the
+same key, computed when no exact set is waiting and on at most ``workers - 1`` workers, replaces the
+cached one. Readiness (and so observation -> ready) is the first set's; both contain the true set.
 """
 
 from __future__ import annotations
@@ -103,6 +107,15 @@ class LRUCache:
             while len(self._items) > self._size:
                 self._untrack(self._items.popitem(last=False)[0])
 
+    def replace(self, key: FRTKey, value: Any) -> bool:
+        """Put ``value`` in place of ``key``'s cached one, if ``key`` is still cached (its place
+        in the LRU order kept); whether it was."""
+        with self._lock:
+            if key not in self._items:
+                return False
+            self._items[key] = value
+            return True
+
     def forget(self, agent_id: str) -> None:
         """Drop every set of ``agent_id``."""
         with self._lock:
@@ -141,6 +154,11 @@ class FRTScheduler:
         self._started: dict[FRTKey, float] = {}
         self._typical_s = 0.0
         self._discard: set[FRTKey] = set()  # running for a forgotten agent: do not cache
+        #: Given a finished set's compute and result, the compute of a tighter set of the same key
+        #: (or None): queued one per agent, run when no exact set waits (``_dispatch``).
+        self.refinement: Callable[[Callable[[], Any], Any], Callable[[], Any] | None] | None = None
+        self._refine_queue: OrderedDict[Hashable, tuple[FRTKey, Callable[[], Any]]] = OrderedDict()
+        self._refining: set[FRTKey] = set()
         self._lock = threading.RLock()  # done-callbacks may run inline in submit()
 
     @property
@@ -167,6 +185,7 @@ class FRTScheduler:
             executor, self._executor = self._executor, None
             queued = [self._pending.pop(key) for key in self._queue.values()]
             self._queue.clear()
+            self._refine_queue.clear()
         for job in queued:
             job.future.cancel()
         if executor is not None:
@@ -283,17 +302,24 @@ class FRTScheduler:
             self._cache.forget(agent_id)
             queued = self._queue.pop(agent_id, None)
             job = self._pending.pop(queued) if queued is not None else None
-            self._discard.update(k for k in self._running if k.agent_id == agent_id)
+            self._refine_queue.pop(agent_id, None)
+            self._discard.update(
+                k for k in self._running | self._refining if k.agent_id == agent_id
+            )
         if job is not None:
             job.future.cancel()
 
     def _dispatch(self) -> None:
-        """Hand queued sets to the executor while fewer than ``workers`` are running."""
+        """Hand queued sets to the executor while fewer than ``workers`` are running; then, if no
+        exact set waits, refinements (``_dispatch_refinements``)."""
         while True:
             with self._lock:
-                if self._executor is None or not self._queue:
+                if self._executor is None:
                     return
-                if len(self._running) >= self._workers:
+                if len(self._running) + len(self._refining) >= self._workers:
+                    return
+                if not self._queue:
+                    self._dispatch_refinements()
                     return
                 _, key = self._queue.popitem(last=False)
                 job = self._pending[key]
@@ -309,6 +335,53 @@ class FRTScheduler:
                     handle = Future()
                     handle.set_exception(exc)
             handle.add_done_callback(functools.partial(self._finished, key))
+
+    def _dispatch_refinements(self) -> None:
+        """Start queued refinements on free workers, keeping one worker for exact sets (called with
+        the lock held and no exact set queued). A refinement whose set left the cache (a newer
+        version, or forgotten) is dropped."""
+        executor = self._executor
+        assert executor is not None
+        while self._refine_queue and len(self._refining) < max(self._workers - 1, 1):
+            if len(self._running) + len(self._refining) >= self._workers:
+                return
+            _, (key, compute) = self._refine_queue.popitem(last=False)
+            if key not in self._cache:
+                continue
+            self._refining.add(key)
+            try:
+                handle = executor.submit(timed, compute)
+            except Exception as exc:
+                handle = Future()
+                handle.set_exception(exc)
+            handle.add_done_callback(functools.partial(self._refined, key))
+
+    def _queue_refinement(self, key: FRTKey, compute: Callable[[], Any], result: Any) -> None:
+        refine = self.refinement
+        follow_up = refine(compute, result) if refine is not None else None
+        if follow_up is None:
+            return
+        with self._lock:
+            slot: Hashable = key.agent_id or key
+            self._refine_queue.pop(slot, None)  # a newer version's refinement goes to the back
+            self._refine_queue[slot] = (key, follow_up)
+
+    def _refined(self, key: FRTKey, handle: Future[Any]) -> None:
+        """A refinement is done: its set replaces the cached one of the same key (if still
+        cached; a newer version or a forgotten agent drops it)."""
+        with self._lock:
+            self._refining.discard(key)
+            discard = key in self._discard
+            self._discard.discard(key)
+            error = handle.exception() if not handle.cancelled() else CancelledError()
+            if error is None and not discard and self._cache.replace(key, handle.result()[0]):
+                self._metrics.frt_compute_seconds.labels("refined").observe(handle.result()[1])
+        if error is not None and not isinstance(error, CancelledError | BrokenExecutor):
+            log.error(
+                "FRT refinement failed",
+                extra={"agent_id": key.agent_id, "frt_version": key.version, "error": repr(error)},
+            )
+        self._dispatch()
 
     def _finished(self, key: FRTKey, handle: Future[Any]) -> None:
         with self._lock:
@@ -331,6 +404,9 @@ class FRTScheduler:
             return
         if error is None:
             self._metrics.frt_compute_seconds.labels("exact").observe(seconds)
+            if not discard:
+                self._queue_refinement(key, job.compute, result)
+                self._dispatch()
             job.future.set_result(result)
             return
         job.future.set_exception(error)

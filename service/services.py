@@ -11,7 +11,7 @@ import contextlib
 import functools
 import logging
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import Future
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -124,13 +124,15 @@ class Services:
         start = time.perf_counter()
         try:
             model = ValueModel.load(path)
-            engine = FRTEngine(model, notch_cut=self.settings.frt_notch_cut)
+            engine = FRTEngine(model)
         except Exception as exc:  # a missing or broken model must not stop the service
             self.model_error = f"model not loaded: {exc}"
             log.error("model not loaded", extra={"model_path": str(path), "error": str(exc)})
             return
         if self.settings.frt_executor == "process":
             self._start_worker_processes(path, engine)
+        if self.settings.frt_notch_cut:
+            self.scheduler.refinement = refine_by_notch_cut
         self.engine = engine
         self.model_name = model.card.name
         self.model_error = None
@@ -156,7 +158,6 @@ class Services:
                 workers,
                 self.settings.frt_worker_nice,
                 self.settings.frt_worker_policy,
-                notch_cut=engine.notch_cut,
             )
         except Exception as exc:
             log.warning(
@@ -249,6 +250,12 @@ class Services:
     def horizon_s(self) -> float:
         engine = self.engine
         return float(engine.horizon) if engine is not None else self.settings.horizon_s
+
+
+def refine_by_notch_cut(compute: Callable[[], Any], result: Any) -> ExactTask | None:
+    """The scheduler's refinement (``FRT_FRT_NOTCH_CUT``): an exact set that could have a notch is
+    cut to the speed-coupled partition once it is ready (``ExactTask.refinement``)."""
+    return compute.refinement(result) if isinstance(compute, ExactTask) else None
 
 
 def services_of(conn: HTTPConnection) -> Services:

@@ -53,10 +53,11 @@ class Settings(BaseSettings):
     frt_worker_policy: Literal["idle", "batch"] = "idle"
     #: Niceness added to "batch" workers (19 kept the sustained bench's checks faster than 5 did).
     frt_worker_nice: int = Field(19, ge=0, le=19)
-    #: Cut exact sets whose heading interval passes +-pi/2 (the car may turn round) to the
-    #: speed-coupled partition (``service.engine.NotchCut``): tighter, still sound sets behind
-    #: such cars, ~35 ms more per such set in the worker (``make bench``).
-    frt_notch_cut: bool = False
+    #: Refine exact sets whose heading interval passes +-pi/2 (the car may turn round): once the
+    #: uncut set is ready (observation -> ready unchanged), a worker with nothing else to do cuts
+    #: it to the speed-coupled partition (``service.engine.NotchCut``) and the cut set replaces it.
+    #: Tighter, still sound sets behind such cars for ~50 ms of a worker's spare time.
+    frt_notch_cut: bool = True
     #: Exact FRTs kept in memory, keyed by (agent, FRT version, inputs): at most the two latest
     #: versions of each agent (``service.scheduler.VERSIONS_PER_AGENT``); least recently used go first.
     frt_cache_size: int = Field(1024, ge=1)

@@ -67,20 +67,23 @@ def test_a_set_that_cannot_turn_round_is_not_cut(engines) -> None:
 
 
 def test_worker_processes_cut_as_the_server_engine_does(engines) -> None:
-    """``FRT_FRT_NOTCH_CUT`` reaches the workers (``start_pool(notch_cut=...)``): a worker's set
-    of a wide setting is cut like the server's own engine's, and comes back without the cut's
-    polygons (rebuilt on demand, not kept for the garbage collector to walk)."""
+    """A task that asks for the cut (``ExactTask(notch_cut=True)``, the service's refinement) is
+    cut in a worker process as by the server's own engine, and comes back without the cut's
+    per-instant polygons (rebuilt on demand, not kept for the garbage collector to walk) but with
+    every tube's cut region."""
     from service.exact_worker import ExactTask, start_pool
 
-    _, notched = engines
+    plain, _ = engines
     setting = NAMED["urban_wide"]
-    pool = start_pool(MODEL, workers=1, nice=0, notch_cut=True)
+    pool = start_pool(MODEL, workers=1, nice=0)
     try:
-        task = ExactTask(Pose(4.0, -1.0, 0.3), setting.v_start, setting.bounds(), notched)
+        task = ExactTask(Pose(4.0, -1.0, 0.3), setting.v_start, setting.bounds(), plain, True)
         there = pool.submit(task).result(timeout=120)
     finally:
         pool.shutdown()
     here = task()
     assert there.notch is not None and there._notch_regions == {}
-    assert there.tube(there.n_slices - 1).equals(here.tube(here.n_slices - 1))
+    assert len(there._notch_tubes) == there.n_slices
+    for j in (there.n_slices - 1, 17):
+        assert there.tube(j).equals(here.tube(j))
     assert there.slice(25).equals(here.slice(25))

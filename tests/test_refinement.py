@@ -1,0 +1,225 @@
+"""Refined sets (``FRTScheduler.refinement``, ``FRT_FRT_NOTCH_CUT``): once an exact set is ready, a
+tighter set of the same key may replace it, computed only on a worker that exact sets do not need.
+Readiness stays the first set's; a refinement of a set that left the cache is dropped."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from models.eval_settings import SETTINGS
+from service.engine import FRTEngine, Pose
+from service.exact_worker import ExactTask
+from service.metrics import Metrics
+from service.model_runtime import ValueModel
+from service.scheduler import FRTKey, FRTScheduler
+from service.services import refine_by_notch_cut
+
+MODEL = Path(__file__).resolve().parent.parent / "models" / "frt_unicycle.onnx"
+NAMED = {s.name: s for s in SETTINGS}
+
+
+class Refinable:
+    """A compute whose result may be refined (``refinement`` returns the tighter compute)."""
+
+    def __init__(self, value: str, refined: Callable[[], str] | None) -> None:
+        self.value = value
+        self.refined = refined
+
+    def __call__(self) -> str:
+        return self.value
+
+
+def refine(compute: Callable[[], Any], result: Any) -> Callable[[], Any] | None:
+    return compute.refined if isinstance(compute, Refinable) else None
+
+
+@pytest.fixture
+def scheduler() -> Iterator[FRTScheduler]:
+    s = FRTScheduler(workers=2, cache_size=16, metrics=Metrics())
+    s.refinement = refine
+    s.start()
+    yield s
+    s.shutdown()
+
+
+def key(agent: str, version: int) -> FRTKey:
+    return FRTKey.of(agent, version, [float(version), 1.0])
+
+
+def until(condition: Callable[[], bool], timeout_s: float = 5.0) -> bool:
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        if condition():
+            return True
+        time.sleep(0.005)
+    return condition()
+
+
+def test_a_refined_set_replaces_the_ready_one(scheduler: FRTScheduler) -> None:
+    gate = threading.Event()
+
+    def tighter() -> str:
+        gate.wait(5)
+        return "refined"
+
+    k = key("a", 1)
+    first = asyncio.run(scheduler.wait(k, Refinable("exact", tighter), 5.0))
+    assert first == "exact" and scheduler.lookup(k) == "exact"  # ready before the refinement
+    gate.set()
+    assert until(lambda: scheduler.lookup(k) == "refined")
+
+
+def test_refinements_leave_a_worker_to_exact_sets(scheduler: FRTScheduler) -> None:
+    """With two workers, one busy refining, a new exact set starts at once on the other; a second
+    refinement waits for the first."""
+    gate = threading.Event()
+    started: list[str] = []
+
+    def tighter(name: str) -> Callable[[], str]:
+        def compute() -> str:
+            started.append(name)
+            gate.wait(5)
+            return f"refined {name}"
+
+        return compute
+
+    asyncio.run(scheduler.wait(key("a", 1), Refinable("exact a", tighter("a")), 5.0))
+    assert until(lambda: started == ["a"])
+    b = asyncio.run(scheduler.wait(key("b", 1), Refinable("exact b", tighter("b")), 1.0))
+    assert b == "exact b"  # not queued behind the refinement
+    time.sleep(0.1)
+    assert started == ["a"]  # b's refinement waits: one worker stays free for exact sets
+    gate.set()
+    assert until(lambda: scheduler.lookup(key("b", 1)) == "refined b")
+    assert scheduler.lookup(key("a", 1)) == "refined a"
+
+
+def test_a_refinement_of_a_forgotten_agent_is_dropped(scheduler: FRTScheduler) -> None:
+    gate = threading.Event()
+    done = threading.Event()
+
+    def tighter() -> str:
+        gate.wait(5)
+        done.set()
+        return "refined"
+
+    k = key("a", 1)
+    asyncio.run(scheduler.wait(k, Refinable("exact", tighter), 5.0))
+    scheduler.forget("a")
+    gate.set()
+    assert done.wait(5)
+    time.sleep(0.05)
+    assert scheduler.lookup(k) is None
+
+
+def test_a_refinement_of_a_superseded_version_does_not_come_back(
+    scheduler: FRTScheduler,
+) -> None:
+    """Refinements are queued one per agent: a newer version's replaces the older one's, and an
+    older version's that finishes after its set left the cache is not put back."""
+    gate = threading.Event()
+
+    def tighter(value: str) -> Callable[[], str]:
+        def compute() -> str:
+            gate.wait(5)
+            return value
+
+        return compute
+
+    # Agent z's refinement holds the refining worker; a's three versions queue theirs behind it.
+    asyncio.run(scheduler.wait(key("z", 1), Refinable("exact z", tighter("refined z")), 5.0))
+    for version in (1, 2, 3):
+        computed = Refinable(f"exact a{version}", tighter(f"refined a{version}"))
+        asyncio.run(scheduler.wait(key("a", version), computed, 5.0))
+    assert scheduler.lookup(key("a", 1)) is None  # two versions per agent are kept
+    gate.set()
+    assert until(lambda: scheduler.lookup(key("a", 3)) == "refined a3")
+    assert scheduler.lookup(key("a", 2)) == "exact a2"  # its refinement was replaced by a3's
+
+
+def test_a_failed_refinement_keeps_the_ready_set(scheduler: FRTScheduler) -> None:
+    def broken() -> str:
+        raise RuntimeError("refinement failed")
+
+    k = key("a", 1)
+    asyncio.run(scheduler.wait(k, Refinable("exact", broken), 5.0))
+    b = asyncio.run(scheduler.wait(key("b", 1), Refinable("exact b", None), 5.0))
+    assert b == "exact b" and scheduler.lookup(k) == "exact"
+
+
+@pytest.fixture(scope="module")
+def engine() -> FRTEngine:
+    return FRTEngine(ValueModel.load(MODEL, threads=1))
+
+
+def test_the_service_refines_sets_that_may_turn_round_by_the_notch_cut(
+    engine: FRTEngine,
+) -> None:
+    """``refine_by_notch_cut``: an uncut set that could have a notch gets a cut refinement, whose
+    set lies inside it and is smaller; a set that cannot turn round, or one already cut, gets
+    none."""
+    wide, narrow = NAMED["urban_wide"], NAMED["urban_narrow"]
+    task = ExactTask(Pose(3.0, -2.0, 0.4), wide.v_start, wide.bounds(), engine)
+    uncut = task()
+    assert uncut.notch is None and uncut.notch_possible
+    follow_up = refine_by_notch_cut(task, uncut)
+    assert isinstance(follow_up, ExactTask) and follow_up.notch_cut
+    cut = follow_up()
+    last = cut.n_slices - 1
+    assert cut.notch is not None
+    assert cut.tube(last).difference(uncut.tube(last)).area < 1e-6
+    assert uncut.tube(last).area - cut.tube(last).area > 50.0  # m²
+    assert refine_by_notch_cut(follow_up, cut) is None
+    plain = ExactTask(Pose(0.0, 0.0, 0.0), narrow.v_start, narrow.bounds(), engine)
+    assert refine_by_notch_cut(plain, plain()) is None
+    assert refine_by_notch_cut(lambda: None, uncut) is None  # not an exact set's task
+
+
+def test_a_cut_set_carries_every_tubes_cut_region(engine: FRTEngine) -> None:
+    """A set cut in a worker reaches the server with every tube's cut region built (drawing a tube
+    there is one intersection more, not a union of up to 30 partition polygons)."""
+    wide = NAMED["shrinking_steering_only"]
+    cut = engine.exact(Pose(0.0, 0.0, 0.0), wide.v_start, wide.bounds(), notch_cut=True)
+    assert sorted(cut._notch_tubes) == list(range(cut.n_slices))
+    areas = [cut._notch_tubes[j].area for j in range(cut.n_slices)]
+    assert np.all(np.diff(areas) >= -1e-6)  # tubes grow with time
+
+
+@pytest.mark.slow
+def test_the_service_serves_the_cut_set_once_refined(start_server) -> None:
+    """Through a real server on the shipped model: an agent whose predictor is unsure of the
+    steering is ready with its uncut set, and soon after its tube shrinks to the cut one (inside
+    the first); ``FRT_FRT_NOTCH_CUT=false`` keeps the uncut set."""
+    import httpx
+    import shapely.geometry
+
+    from tests.fixtures.payloads import observation, prediction
+
+    def tube_of(http: httpx.Client, agent: str) -> shapely.Geometry:
+        body = http.get(f"/v1/agents/{agent}/frt", params={"include": "K"}).json()
+        return shapely.geometry.shape(body["tube"]["K"])
+
+    areas = {}
+    for cut in (True, False):
+        server = start_server(model_path=str(MODEL), frt_notch_cut=str(cut).lower())
+        with httpx.Client(base_url=server.url, timeout=30.0) as http:
+            body = observation(0.0, speed=8.0, prediction=prediction(var=(50.0, 240.0)))
+            ready = http.post("/v1/agents/w/observations?wait_frt_ms=10000", json=body).json()
+            assert ready["frt_ready"] and ready["control_bounds"]["u1_max_start"] > 0.9
+            first = tube_of(http, "w")
+            smaller = first.area - 50.0
+            assert until(lambda: tube_of(http, "w").area < smaller, 10.0) == cut  # noqa: B023
+            last = tube_of(http, "w")
+            assert last.difference(first).area < 1.0  # m²: inside the first (up to rounding)
+            areas[cut] = last.area
+            refined = 'frt_compute_seconds_count{kind="refined"}'
+            assert (refined in http.get("/metrics").text) == cut
+    assert areas[True] < areas[False] - 50.0

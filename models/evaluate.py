@@ -22,6 +22,11 @@ the same for the partition bound (its recall of rollout cells must be 1: a check
 and the area of K(t) outside the partition bound and how far its cells reach beyond the bound's
 (95th percentile, as against the rollouts).
 
+K(t) is the set the service serves once refined: by default (``FRT_FRT_NOTCH_CUT``, ``--notch-cut``)
+cut to a cheaper speed-coupled partition where the car may turn round (``service.engine.NotchCut``).
+The uncut set, which the service answers from until that refinement lands, is reported beside it
+(``iou_uncut``, ``beyond_uncut_p95_m``).
+
 Calibration (--calibrate): scenario optimisation over random parameter settings (Lin & Bansal's
 verification of DeepReach): delta is the largest value of V at sampled reachable states, so with N
 i.i.d. samples, P(a new reachable state has V > delta) <= eps holds with confidence 1 - (1 - eps)^N.
@@ -55,10 +60,17 @@ from models.rollout import (
     sample_reference_schedules,
 )
 from models.sampling import sample_parameters
-from service.engine import FRTEngine, Pose
+from service.engine import NOTCH_BINS, NOTCH_STEPS, FRTEngine, Pose
 from service.model_runtime import ValueModel
+from service.settings import Settings
+
+#: Whether the service cuts notches by default (its sets once refined): what ``make evaluate``
+#: describes.
+SERVED_NOTCH_CUT = bool(Settings.model_fields["frt_notch_cut"].default)
 
 TUBE_TIMES = (1.0, 2.0, 3.0)
+#: Issue 3's target for "beyond" (95th percentile, metres): rows over it are counted.
+BEYOND_TARGET_M = 1.5
 CELL_M = 0.25
 DT = 0.02
 REFERENCE = (
@@ -208,6 +220,12 @@ def evaluate_setting(
     roll = simulate(setting.v_start, bounds, n_rollouts, rng)
     frt = engine.exact(Pose(0.0, 0.0, 0.0), setting.v_start, bounds)
     frt_without = without_network(engine).exact(Pose(0.0, 0.0, 0.0), setting.v_start, bounds)
+    # With the notch cut the service answers from the uncut set until its cut refinement lands.
+    frt_uncut = (
+        engine.exact(Pose(0.0, 0.0, 0.0), setting.v_start, bounds, notch_cut=False)
+        if engine.notch_cut
+        else frt
+    )
     ob = engine.outer(setting.v_start, bounds)
     proven = partition_tubes(setting.v_start, bounds, TUBE_TIMES, float(ob.sweep_speed_max.max()))
     rows = []
@@ -253,6 +271,9 @@ def evaluate_setting(
         row["iou_without_network"] = compare_cells(reference, model_cells(tube_without, reference))[
             "iou"
         ]
+        uncut = compare_cells(reference, model_cells(frt_uncut.geometry("tube", t), reference))
+        row["iou_uncut"] = uncut["iou"]
+        row["beyond_uncut_p95_m"] = uncut["beyond_p95_m"]
         rows.append(row)
         artefacts[f"reference_{t:g}"] = reference
     return rows, artefacts
@@ -349,6 +370,14 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, float]:
         "p95_beyond_m_max_partition": max(r["partition_beyond_p95_m"] for r in rows),
         "beyond_partition_p95_m_max": max(r["beyond_partition_p95_m"] for r in rows),
         "beyond_partition_p95_m_mean": float(np.mean([r["beyond_partition_p95_m"] for r in rows])),
+        "rows_beyond_over_target": sum(r["beyond_p95_m"] > BEYOND_TARGET_M for r in rows),
+        "mean_iou_uncut": float(np.mean([r["iou_uncut"] for r in rows])),
+        "worst_iou_uncut": min(r["iou_uncut"] for r in rows),
+        "p95_beyond_m_mean_uncut": float(np.mean([r["beyond_uncut_p95_m"] for r in rows])),
+        "p95_beyond_m_max_uncut": max(r["beyond_uncut_p95_m"] for r in rows),
+        "rows_beyond_over_target_uncut": sum(
+            r["beyond_uncut_p95_m"] > BEYOND_TARGET_M for r in rows
+        ),
     }
 
 
@@ -426,8 +455,11 @@ def main() -> None:
     parser.add_argument("--only", nargs="*", default=None, help="names of settings to evaluate")
     parser.add_argument(
         "--notch-cut",
-        action="store_true",
-        help="evaluate the engine with FRTEngine(notch_cut=True) (off in the service)",
+        action=argparse.BooleanOptionalAction,
+        default=SERVED_NOTCH_CUT,
+        help="evaluate the set the service serves once refined, cut to the speed-coupled "
+        "partition where a notch is possible (default: the service's FRT_FRT_NOTCH_CUT default, "
+        f"{SERVED_NOTCH_CUT}); the uncut set, served until then, is reported beside it",
     )
     parser.add_argument("--plot", type=Path, default=None)
     parser.add_argument("--json", type=Path, default=None)
@@ -486,6 +518,7 @@ def main() -> None:
         "cell_m": CELL_M,
         "dt_s": DT,
         "seed": args.seed,
+        "notch_cut": {"on": args.notch_cut, "bins": NOTCH_BINS, "steps": NOTCH_STEPS},
         "summary": summary,
         "rows": rows,
     }

@@ -66,13 +66,16 @@ from service.refine import coarse_to_fine
 #: them between sweeps that step sideways: by up to 0.1 m with 0.1 s polygons and 0.05 s boxes.)
 SWEEPS_PER_WINDOW = 4
 
-#: The notch cut (``FRTEngine(notch_cut=True)``, off by default): instants whose heading interval
-#: passes NOTCH_HEADING (the car may head backwards, so the set may have a notch behind it) are
-#: cut to the speed-coupled partition of NOTCH_BINS final-heading bins, its speed programmes on
-#: NOTCH_STEPS sub-intervals (``models.corridor_bound.partition_supports``).
+#: The notch cut (``exact(notch_cut=True)``; the service refines its sets with it in the
+#: background, ``FRT_FRT_NOTCH_CUT``): instants whose heading interval passes NOTCH_HEADING (the car
+#: may head backwards, so the set may have a notch behind it) are cut to the speed-coupled
+#: partition of NOTCH_BINS final-heading bins, its speed programmes on NOTCH_STEPS sub-intervals
+#: (``models.corridor_bound.partition_supports``). 12 x 30 rather than 8 x 20: "beyond" p95 at
+#: 3 s on urban_wide 4.95 m instead of 7.85 m for ~130 instead of ~60 ms of a worker's spare time
+#: (``scripts/partition_bound.py --bins 12x1c --coupled-steps 30``, one-off).
 NOTCH_HEADING = math.pi / 2
-NOTCH_BINS = 8
-NOTCH_STEPS = 20
+NOTCH_BINS = 12
+NOTCH_STEPS = 30
 
 
 @dataclass(frozen=True)
@@ -704,8 +707,8 @@ class FRTEngine:
         notch_cut: bool = False,
     ) -> None:
         self.model = model
-        #: Cut exact sets to the speed-coupled partition where a notch is possible (``NotchCut``;
-        #: a wide set 46 ms instead of 11 in-process, ``make bench``'s exact cases).
+        #: Cut exact sets to the speed-coupled partition where a notch is possible (``NotchCut``)
+        #: unless ``exact`` is told otherwise (``make bench``'s exact cases time both).
         self.notch_cut = notch_cut
         #: Evaluate the projection coarse-to-fine (``service.refine``).
         self.refine = refine

@@ -228,6 +228,16 @@ class Services:
         """``engine.exact`` for ``job``: on this engine in a thread, on its own in a worker process."""
         return ExactTask(job.pose, job.v_start, job.bounds, self.require_engine())
 
+    def refinement_state(self, exact: FRTSet | None) -> str | None:
+        """Of a ready exact set: "done" if it is the notch-cut refinement, "pending" if one is due
+        (``FRT_FRT_NOTCH_CUT`` and a set that may turn round), else "not_needed"; None if no set."""
+        if exact is None:
+            return None
+        if getattr(exact, "notch", None) is not None:
+            return "done"
+        due = self.scheduler.refinement is not None and getattr(exact, "notch_possible", False)
+        return "pending" if due else "not_needed"
+
     def conservative(self, job: FRTJob) -> FRTSet:
         """The engine's fast set that contains the exact one (boxes only, ~1 ms here: built on
         the caller's thread, less than a round trip to a worker process would cost).

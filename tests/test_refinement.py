@@ -197,7 +197,8 @@ def test_a_cut_set_carries_every_tubes_cut_region(engine: FRTEngine) -> None:
 def test_the_service_serves_the_cut_set_once_refined(start_server) -> None:
     """Through a real server on the shipped model: an agent whose predictor is unsure of the
     steering is ready with its uncut set, and soon after its tube shrinks to the cut one (inside
-    the first); ``FRT_FRT_NOTCH_CUT=false`` keeps the uncut set."""
+    the first), ``frt_refinement`` going from pending to done; ``FRT_FRT_NOTCH_CUT=false`` keeps
+    the uncut set ("not_needed")."""
     import httpx
     import shapely.geometry
 
@@ -215,8 +216,12 @@ def test_the_service_serves_the_cut_set_once_refined(start_server) -> None:
             ready = http.post("/v1/agents/w/observations?wait_frt_ms=10000", json=body).json()
             assert ready["frt_ready"] and ready["control_bounds"]["u1_max_start"] > 0.9
             first = tube_of(http, "w")
+            state = http.get("/v1/agents/w").json()["frt_refinement"]
+            assert state in (("pending", "done") if cut else ("not_needed",))
             smaller = first.area - 50.0
             assert until(lambda: tube_of(http, "w").area < smaller, 10.0) == cut  # noqa: B023
+            state = http.get("/v1/agents/w").json()["frt_refinement"]
+            assert state == ("done" if cut else "not_needed")
             last = tube_of(http, "w")
             assert last.difference(first).area < 1.0  # m²: inside the first (up to rounding)
             areas[cut] = last.area

@@ -81,6 +81,9 @@ class Agent(Response):
     control_bounds: ControlBounds
     frt_version: int
     frt_ready: bool = False
+    #: Once the exact FRT is ready: "pending" while the service tightens it in the background (an
+    #: agent that may turn round), "done" after, "not_needed" otherwise.
+    frt_refinement: str | None = None
     config: EffectiveConfig | None = None
 
 

@@ -106,7 +106,7 @@ def prediction(rng: np.random.Generator, steps: int = 6, steering_var: float = 0
 
 
 #: A predictor unsure of the steering: the agent's steering bounds come out near +-1 rad/s, so it
-#: may turn round within the horizon (and FRT_FRT_NOTCH_CUT cuts its sets).
+#: may turn round within the horizon (and the service refines its sets by the notch cut).
 WIDE_STEERING_VAR = 50.0
 
 

@@ -130,6 +130,7 @@ async def answer_states(
         if future.done() and not future.cancelled() and future.exception() is None:
             exact[i] = future.result()
     not_ready = sum(frt is None for frt in exact)
+    found = list(exact)
     no_time = _answer_in_time(services, exact, arrival, deadline_ms)
 
     xy = np.array([[p.x, p.y] for p in request.trajectory], dtype=np.float64)
@@ -185,6 +186,11 @@ async def answer_states(
             reasons.labels(reason).inc(count)
     done = time.perf_counter()
     costs.response.record(done - sets_done, len(states))
+    if no_time and not any(frt is not None for frt in exact):
+        skipped = next(i for i, frt in enumerate(found) if frt is not None)
+        asyncio.get_running_loop().call_soon(
+            _measure_exact_answer, services, found[skipped], xy, t_rel(skipped)
+        )
     if done - arrival > deadline_ms / 1000.0:
         services.metrics.deadline_misses.inc()
         log.warning(
@@ -226,6 +232,23 @@ def _answer_in_time(
     for i in found[keep:]:
         exact[i] = None
     return len(found) - keep
+
+
+def _measure_exact_answer(
+    services: Services, frt: FRTSet, xy: np.ndarray, t_rel: np.ndarray | None
+) -> None:
+    """Measure, after a check has answered, what answering it from ``frt`` (an exact set it left
+    out for want of time) would have cost, if its tubes are drawn: a check that answers every agent
+    conservatively records no exact cost, so an estimate once too high (a first, cold answer; a
+    pause under load) would otherwise never come down, and every later check with a short
+    deadline would answer conservatively too."""
+    if not _plain_clearance(frt):
+        return
+    if t_rel is not None and frt.missing_tubes(frt.tube_indices(t_rel).tolist()):
+        return  # drawing tubes is the tube builder's to time (service.tube_builder)
+    start = time.perf_counter()
+    tube_clearances([frt], xy, [t_rel])
+    services.answer_costs.exact.record(time.perf_counter() - start, 1)
 
 
 def _fit_tubes_to_deadline(

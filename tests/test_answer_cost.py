@@ -125,3 +125,26 @@ def _deadline_misses(client: TestClient) -> float:
     return next(
         float(x.rsplit(" ", 1)[1]) for x in lines if x.startswith("frt_deadline_misses_total")
     )
+
+
+def test_an_estimate_too_high_to_answer_exactly_comes_down(client: TestClient) -> None:
+    """A check that answers every agent conservatively for want of time measures, once answered,
+    what the exact answer would have cost: an estimate once too high (a cold first answer, a pause
+    under load) comes down, and checks answer from the exact set again."""
+    client.post("/v1/agents/cold/observations", params={"wait_frt_ms": 5000}, json=observation(1.0))
+    check = {"trajectory": [{"t": 1.0 + 0.1 * i, "x": 2.0 + i, "y": 0.5} for i in range(10)]}
+    check["deadline_ms"] = 20.0
+    assert client.post("/v1/agents/cold/collision-check", json=check).json()["conservative"] is False
+    costs: AnswerCosts = client.app.state.services.answer_costs  # type: ignore[attr-defined]
+    learned = costs.exact
+    costs.exact = CostEstimate(mean_s=0.05, deviation_s=0.0, measured=True)  # 50 ms per agent
+    try:
+        answers = [
+            client.post("/v1/agents/cold/collision-check", json=check).json()["conservative"]
+            for _ in range(60)
+        ]
+        assert answers[0] is True  # the estimate says the exact answer cannot make 20 ms
+        assert answers[-1] is False  # measured since: it can
+        assert costs.exact.mean_s < 0.01
+    finally:
+        costs.exact = learned

@@ -134,7 +134,9 @@ def test_an_estimate_too_high_to_answer_exactly_comes_down(client: TestClient) -
     client.post("/v1/agents/cold/observations", params={"wait_frt_ms": 5000}, json=observation(1.0))
     check = {"trajectory": [{"t": 1.0 + 0.1 * i, "x": 2.0 + i, "y": 0.5} for i in range(10)]}
     check["deadline_ms"] = 20.0
-    assert client.post("/v1/agents/cold/collision-check", json=check).json()["conservative"] is False
+    assert (
+        client.post("/v1/agents/cold/collision-check", json=check).json()["conservative"] is False
+    )
     costs: AnswerCosts = client.app.state.services.answer_costs  # type: ignore[attr-defined]
     learned = costs.exact
     costs.exact = CostEstimate(mean_s=0.05, deviation_s=0.0, measured=True)  # 50 ms per agent

@@ -31,7 +31,7 @@ import math
 import numpy as np
 import shapely
 
-from models.contract import COL, HORIZON_S, INITIAL_SET, InitialSet
+from models.contract import BOUND_COLUMNS, COL, HORIZON_S, INITIAL_SET, InitialSet
 from models.dynamics import heading_interval, interpolate_bounds, speed_change_interval
 from models.outer_bound import cos_max_towards, half_plane_polygons, outer_bound
 
@@ -308,9 +308,9 @@ def partition_tubes(
 ) -> list[shapely.Geometry]:
     """Regions that contain every position reached during [0, t] for each t of ``t_ends``: the
     union over instants ``instant_s`` apart of their bin polygons (:func:`partition_supports`),
-    each grown by ``speed_max * instant_s / 2`` (the farthest a car moves to the nearest instant;
-    ``speed_max`` must bound the speed over the horizon), and the initial disc grown alike for
-    the times before the first instant. Sound (tests/test_corridor_bound.py), not convex: with
+    each swept along its headings by ``speed_max * instant_s / 2`` (:func:`swept_supports`: the
+    farthest a car moves to the nearest instant; ``speed_max`` must bound the speed over the
+    horizon), and the initial disc grown by as much for the times before the first instant. Sound (tests/test_corridor_bound.py), not convex: with
     the speed coupled it cuts most of the notch behind a car that can turn round.
     ``partitioned_from_s``: instants before it take the interval outer bound's convex polygon
     instead (early sets have no notch; the partition's cost is in the instants it runs on)."""
@@ -331,15 +331,21 @@ def partition_tubes(
         outer_bound(v_start, bounds, initial_set=initial_set) if not partitioned.all() else None
     )
     grow = speed_max * instant_s / 2
+    turn = max_turn_rate(bounds) * instant_s / 2
+    headings = final_heading_bins(
+        bounds, instants[partitioned], heading_bins, initial_set=initial_set
+    )
+    headings = np.repeat(headings, speed_bins, axis=1)
     parts = [grown_to_hold(shapely.Point(0.0, 0.0), initial_set.radius_m + grow)]
     j = 0
     for s in instants:
         if convex is not None and s < partitioned_from_s - 1e-9:
             region = shapely.Polygon(convex.polygons_at([convex.nearest_row(s)])[0])
-        else:
-            region = bins_union(support[j], empty[j], directions)
-            j += 1
-        parts.append(grown_to_hold(region, grow))
+            parts.append(grown_to_hold(region, grow))
+            continue
+        swept = swept_supports(support[j], headings[j], grow, turn, directions)
+        parts.append(bins_union(swept, empty[j], directions))
+        j += 1
     return [shapely.union_all(parts[: round(t / instant_s) + 1]) for t in t_ends]
 
 
@@ -371,6 +377,54 @@ if __name__ == "__main__":
     main()
 
 
+def final_heading_bins(
+    bounds: np.ndarray,
+    times: np.ndarray,
+    heading_bins: int,
+    horizon: float = HORIZON_S,
+    initial_set: InitialSet = INITIAL_SET,
+) -> np.ndarray:
+    """The final (unwrapped) heading interval of each bin of :func:`partition_supports` at each of
+    ``times`` [J]: [J, B, 2]. The bins split the forward heading interval evenly."""
+    params = np.zeros(len(COL))
+    params[6:] = np.asarray(bounds, dtype=float)
+    lo, hi = heading_interval(params, np.asarray(times, dtype=float), horizon)
+    lo, hi = lo - initial_set.heading_margin_rad, hi + initial_set.heading_margin_rad
+    edges = np.arange(heading_bins + 1) / heading_bins
+    at = lo[:, None] + (hi - lo)[:, None] * edges[None, :]
+    return np.stack([at[:, :-1], at[:, 1:]], axis=-1)
+
+
+def max_turn_rate(bounds: np.ndarray) -> float:
+    """The largest |u1| the bounds allow at any time (the interpolation stays between its ends)."""
+    named = dict(zip(BOUND_COLUMNS, np.asarray(bounds, dtype=float), strict=True))
+    return max(abs(v) for name, v in named.items() if name.startswith("u1_"))
+
+
+def swept_supports(
+    support: np.ndarray,
+    headings: np.ndarray,
+    reach_m: float,
+    turn_rad: float,
+    directions: np.ndarray = DIRECTIONS,
+) -> np.ndarray:
+    """Supports [B, M] of regions that hold every position within ``reach_m`` of travel, before or
+    after, of one at a bin's instant: each bin's polygon (``support`` [B, M]) plus the hull of
+    the double sector of radius ``reach_m`` along its headings (``headings`` [B, 2], widened by
+    ``turn_rad``, how far the heading turns meanwhile).
+
+    A car in bin b at instant s whose speed stays below V moves, during [s - D, s + D], by the
+    integral of v (cos theta, sin theta) with theta inside the widened bin and |v| <= V: a vector
+    of the cone of those headings no longer than V D, forwards after s, backwards before. So the
+    displacement lies in the hull of the two opposite sectors of radius V D = ``reach_m``, whose
+    support in direction phi is reach_m max(0, max cos(theta - phi), max cos(theta + pi - phi)):
+    thinner than the disc of that radius across a bin's headings, where the notch's walls are."""
+    lo, hi = headings[:, 0] - turn_rad, headings[:, 1] + turn_rad
+    forward = cos_max_towards(lo, hi, directions)
+    backward = cos_max_towards(lo + math.pi, hi + math.pi, directions)
+    return support + reach_m * np.maximum(np.maximum(forward, backward), 0.0)
+
+
 def partition_supports(
     v_start: float,
     bounds: np.ndarray,
@@ -400,16 +454,15 @@ def partition_supports(
     x[:, 6:] = np.asarray(bounds, dtype=float)
     corridors = _Corridors(x, steps, horizon)
     m = initial_set
-    th_lo = corridors.u1_lo_cum[:, -1] - m.heading_margin_rad
-    th_hi = corridors.u1_hi_cum[:, -1] + m.heading_margin_rad
+    theta = np.repeat(
+        final_heading_bins(bounds, times, heading_bins, horizon, initial_set), speed_bins, axis=1
+    ).reshape(-1, 2)
     sp_lo = _stop_rule_paths(
         np.maximum(corridors.v_start - m.speed_margin_mps, 0.0), corridors.step_lo
     )[:, -1]
     sp_hi = _stop_rule_paths(corridors.v_start + m.speed_margin_mps, corridors.step_hi)[:, -1]
     bin_index = np.tile(np.arange(n_bins), len(times))
-    h_edges = (bin_index // speed_bins)[:, None] + np.array([0.0, 1.0])
     s_edges = (bin_index % speed_bins)[:, None] + np.array([0.0, 1.0])
-    theta = th_lo[:, None] + (th_hi - th_lo)[:, None] * h_edges / heading_bins
     speed = sp_lo[:, None] + (sp_hi - sp_lo)[:, None] * s_edges / speed_bins
     support, empty = corridors.supports(
         np.zeros(len(x)),

@@ -39,7 +39,14 @@ from shapely.geometry.polygon import orient
 
 from models.contract import BOUND_COLUMNS, COL, N_INPUTS
 from models.corridor_bound import DIRECTIONS as NOTCH_DIRECTIONS
-from models.corridor_bound import bins_union, grown_to_hold, partition_supports
+from models.corridor_bound import (
+    bins_union,
+    final_heading_bins,
+    grown_to_hold,
+    max_turn_rate,
+    partition_supports,
+    swept_supports,
+)
 from models.dynamics import wrap_angle
 from models.outer_bound import (
     SUPPORT_DIRECTIONS,
@@ -81,13 +88,16 @@ NOTCH_STEPS = 30
 @dataclass(frozen=True)
 class NotchCut:
     """The partition's supports at the instants of a set it cuts (``cut``; [J, B, M] and [J, B]
-    ``empty`` bins, rows of other instants unused), and the farthest a car moves in half an
-    instant."""
+    ``empty`` bins, rows of other instants unused) with each bin's headings ([J, B, 2]); per
+    instant the farthest a car moves in half an instant either side of it (``reach_m`` [J]), and
+    how far its heading turns meanwhile."""
 
     cut: np.ndarray
     supports: np.ndarray
     empty: np.ndarray
-    grow_m: float
+    headings: np.ndarray
+    reach_m: np.ndarray
+    turn_rad: float
 
 
 #: Slice spacing when the distilled projection network is present (its level is calibrated on the
@@ -487,20 +497,24 @@ class FieldTubeSet(FRTSet):
         return k_set
 
     def _notch_region(self, j: int) -> BaseGeometry:
-        """Every position reachable within half an instant of s_j: the partition's bins where the
-        set is cut at s_j, else the instant's convex outer polygon, grown by how far a car moves
-        in half an instant."""
+        """Every position reachable within half an instant of s_j: where the set is cut at s_j,
+        the partition's bins each swept along its headings by how far a car moves in half an
+        instant (``swept_supports``); else the instant's convex outer polygon grown by as much."""
         with self._lock:
             cached = self._notch_regions.get(j)
         if cached is not None:
             return cached
         notch = self.notch
         assert notch is not None
+        reach = float(notch.reach_m[j])
         if notch.cut[j]:
-            region = bins_union(notch.supports[j], notch.empty[j], NOTCH_DIRECTIONS)
+            swept = swept_supports(
+                notch.supports[j], notch.headings[j], reach, notch.turn_rad, NOTCH_DIRECTIONS
+            )
+            region = bins_union(swept, notch.empty[j], NOTCH_DIRECTIONS)
         else:
-            region = shapely.Polygon(self.bound.polygons_at([self.bound_rows[j]])[0])
-        region = grown_to_hold(region, notch.grow_m)
+            polygon = shapely.Polygon(self.bound.polygons_at([self.bound_rows[j]])[0])
+            region = grown_to_hold(polygon, reach)
         with self._lock:
             self._notch_regions[j] = region
         return region
@@ -1018,8 +1032,21 @@ class FRTEngine:
         supports = np.full((len(rows), NOTCH_BINS, len(NOTCH_DIRECTIONS)), np.inf)
         empties = np.zeros((len(rows), NOTCH_BINS), dtype=bool)
         supports[cut], empties[cut] = support, empty
-        grow = float(ob.sweep_speed_max.max()) * self.slice_dt / 2
-        return NotchCut(cut=cut, supports=supports, empty=empties, grow_m=grow)
+        headings = np.zeros((len(rows), NOTCH_BINS, 2))
+        headings[cut] = final_heading_bins(bounds, ob.times[rows][cut], NOTCH_BINS, self.horizon)
+        # The fastest speed of the sweeps within half an instant of each instant.
+        k = self.outer_steps_per_slice
+        speed = ob.sweep_speed_max
+        half = self.slice_dt / 2
+        reach = np.array([speed[max(r - k // 2, 0) : r + (k + 1) // 2].max() * half for r in rows])
+        return NotchCut(
+            cut=cut,
+            supports=supports,
+            empty=empties,
+            headings=headings,
+            reach_m=reach,
+            turn_rad=max_turn_rate(bounds) * half,
+        )
 
     def levels(self, ob: OuterBound, rows: list[int]) -> np.ndarray:
         """The calibrated level of W (or V) at each instant ``ob.times[rows]``."""

@@ -226,3 +226,38 @@ def test_positions_the_projection_is_lifted_at_are_unreachable_for_every_heading
         x = np.repeat(row[None].astype(float), h.size, axis=0)
         x[:, COL["heading"]], x[:, COL["speed"]] = h, v
         assert value_lower_bound(x).min() >= 0.0
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_swept_bin_holds_every_short_path_from_it(seed: int) -> None:
+    """``swept_supports``: from any point of a bin's polygon, a path of at most ``reach`` metres
+    (either way in time) whose heading stays within the bin's headings widened by ``turn`` ends
+    inside the swept polygon; and sweeping is thinner than growing by a disc across the headings."""
+    from models.corridor_bound import DIRECTIONS, swept_supports
+    from models.outer_bound import half_plane_polygons
+
+    rng = np.random.default_rng(seed)
+    for _ in range(20):
+        lo = rng.uniform(-4.0, 4.0)
+        headings = np.array([[lo, lo + rng.uniform(0.0, 1.5)]])
+        reach, turn = rng.uniform(0.1, 2.0), rng.uniform(0.0, 0.2)
+        box = shapely.box(*sorted(rng.uniform(-3, 3, 2)), *sorted(rng.uniform(4, 9, 2)))
+        support = np.array([[max(np.cos(a) * x + np.sin(a) * y for x, y in box.exterior.coords)
+                             for a in DIRECTIONS]])  # fmt: skip
+        swept = swept_supports(support, headings, reach, turn)
+        polygon = shapely.Polygon(half_plane_polygons(DIRECTIONS, swept)[0])
+        starts = shapely.get_coordinates(box.exterior)[:-1]
+        for start in starts:
+            steps = 50
+            theta = np.clip(
+                rng.uniform(headings[0, 0], headings[0, 1]) + np.cumsum(rng.normal(0, 0.1, steps)),
+                headings[0, 0] - turn,
+                headings[0, 1] + turn,
+            )
+            speed = rng.uniform(0.0, 1.0, steps) * reach / steps
+            moves = np.stack([np.cos(theta), np.sin(theta)], axis=1) * speed[:, None]
+            sign = rng.choice([-1.0, 1.0])  # after the instant, or (backwards) before it
+            ends = start + sign * np.cumsum(moves, axis=0)
+            assert shapely.covers(polygon.buffer(1e-9), shapely.points(ends)).all()
+        disc = shapely.Polygon(half_plane_polygons(DIRECTIONS, support + reach)[0])
+        assert polygon.area <= disc.area + 1e-9

@@ -245,12 +245,6 @@ class FRTSet:
         tubes[:] = [self.tube(int(j)) for j in unique]
         return signed_distances(tubes, rows, xy)
 
-    def build_notch_tubes(self) -> None:
-        """Every tube's cut region (``_notch_tube``), built in increasing order (each from the one
-        before)."""
-        for j in range(self.n_slices):
-            self._notch_tube(j)
-
     def missing_tubes(self, indices: list[int]) -> list[int]:
         """The tubes among ``indices`` not drawn yet (none where tubes cost nothing to draw)."""
         return []
@@ -532,12 +526,6 @@ class FieldTubeSet(FRTSet):
         with self._lock:
             self._notch_tubes[j] = tube
         return tube
-
-    def build_notch_tubes(self) -> None:
-        """Every tube's cut region (``_notch_tube``), built in increasing order (each from the one
-        before)."""
-        for j in range(self.n_slices):
-            self._notch_tube(j)
 
     def missing_tubes(self, indices: list[int]) -> list[int]:
         with self._lock:
@@ -899,9 +887,9 @@ class FRTEngine:
         """The model's set {W <= level} ∩ outer bound, sampled per slice (see FieldTubeSet); the
         whole tube is built at once (collision checks need it first), the rest on demand.
         ``notch_cut`` (default: the engine's) also cuts it to the speed-coupled partition where
-        a notch is possible (``NotchCut``), and then builds every tube's cut region at once (a
-        set cut in a worker process reaches the server with them: a tube drawn there is one
-        intersection more).
+        a notch is possible (``NotchCut``), and then draws every tube at once: a set cut in a
+        worker process (the service's background refinement) reaches the server with them, so a
+        check there draws none on the event loop.
 
         Every instant's fields are computed together on windows padded to one shape
         (``service.field_stack``)."""
@@ -999,7 +987,8 @@ class FRTEngine:
         frt.evaluations = evaluations
         frt.tube(self.n_slices - 1)
         if frt.notch is not None:
-            frt.build_notch_tubes()
+            for j in range(self.n_slices):  # in increasing order: each cut region from the last
+                frt.tube(j)
         return frt
 
     @staticmethod

@@ -43,9 +43,10 @@ _engine: FRTEngine | None = None
 
 
 #: Caches a set rebuilds on demand, not sent back (each name's empty value made anew per set):
-#: the outer windows' and the notch cut's ~30 polygons would stay in the server's FRT cache as
-#: objects its garbage collector walks (service.engine.SliceFields).
-_NOT_SENT = {"_outer_windows": lambda: None, "_notch_regions": dict}
+#: the outer windows' and the notch cut's ~30 polygons each would stay in the server's FRT cache
+#: as objects its garbage collector walks (service.engine.SliceFields). A cut set's tubes are all
+#: drawn (``FRTEngine.exact``), so the cut regions they were drawn from are not needed there.
+_NOT_SENT = {"_outer_windows": lambda: None, "_notch_regions": dict, "_notch_tubes": dict}
 
 
 def _reduce_frt_set(frt: FRTSet) -> tuple[Any, ...]:

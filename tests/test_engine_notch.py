@@ -68,9 +68,9 @@ def test_a_set_that_cannot_turn_round_is_not_cut(engines) -> None:
 
 def test_worker_processes_cut_as_the_server_engine_does(engines) -> None:
     """A task that asks for the cut (``ExactTask(notch_cut=True)``, the service's refinement) is
-    cut in a worker process as by the server's own engine, and comes back without the cut's
-    per-instant polygons (rebuilt on demand, not kept for the garbage collector to walk) but with
-    every tube's cut region."""
+    cut in a worker process as by the server's own engine, and comes back with every tube drawn but
+    without the cut's regions (rebuilt on demand for slices, not kept for the garbage collector
+    to walk)."""
     from service.exact_worker import ExactTask, start_pool
 
     plain, _ = engines
@@ -82,8 +82,8 @@ def test_worker_processes_cut_as_the_server_engine_does(engines) -> None:
     finally:
         pool.shutdown()
     here = task()
-    assert there.notch is not None and there._notch_regions == {}
-    assert len(there._notch_tubes) == there.n_slices
+    assert there.notch is not None and there._notch_regions == {} == there._notch_tubes
+    assert there.missing_tubes(list(range(there.n_slices))) == []
     for j in (there.n_slices - 1, 17):
         assert there.tube(j).equals(here.tube(j))
     assert there.slice(25).equals(here.slice(25))

@@ -183,13 +183,17 @@ def test_the_service_refines_sets_that_may_turn_round_by_the_notch_cut(
     assert refine_by_notch_cut(lambda: None, uncut) is None  # not an exact set's task
 
 
-def test_a_cut_set_carries_every_tubes_cut_region(engine: FRTEngine) -> None:
-    """A set cut in a worker reaches the server with every tube's cut region built (drawing a tube
-    there is one intersection more, not a union of up to 30 partition polygons)."""
+def test_a_cut_set_comes_with_every_tube_drawn(engine: FRTEngine) -> None:
+    """A set cut in a worker reaches the server with every tube drawn (a check there draws none
+    on the event loop), each inside the uncut set's and growing with time."""
     wide = NAMED["shrinking_steering_only"]
     cut = engine.exact(Pose(0.0, 0.0, 0.0), wide.v_start, wide.bounds(), notch_cut=True)
-    assert sorted(cut._notch_tubes) == list(range(cut.n_slices))
-    areas = [cut._notch_tubes[j].area for j in range(cut.n_slices)]
+    uncut = engine.exact(Pose(0.0, 0.0, 0.0), wide.v_start, wide.bounds())
+    assert cut.missing_tubes(list(range(cut.n_slices))) == []
+    assert len(uncut.missing_tubes(list(range(uncut.n_slices)))) == uncut.n_slices - 1
+    for j in range(0, cut.n_slices, 5):
+        assert cut.tube(j).difference(uncut.tube(j)).area < 1e-6
+    areas = [cut.tube(j).area for j in range(cut.n_slices)]
     assert np.all(np.diff(areas) >= -1e-6)  # tubes grow with time
 
 

@@ -385,7 +385,8 @@ def print_table(rows: list[dict[str, Any]]) -> None:
     header = (
         f"{'setting':28s} {'t':>4s} {'recall(states)':>14s} {'recall(cells)':>13s} {'IoU':>6s} "
         f"{'beyond p95 [m]':>14s} {'IoU outer bound':>15s} {'IoU w/o network':>15s} "
-        f"{'IoU partition':>13s} {'partition beyond p95 [m]':>24s} {'beyond partition p95 [m]':>24s}"
+        f"{'IoU partition':>13s} {'partition beyond p95 [m]':>24s} {'beyond partition p95 [m]':>24s} "
+        f"{'IoU uncut':>9s} {'beyond uncut p95 [m]':>20s}"
     )
     print(header)
     print("-" * len(header))
@@ -395,7 +396,8 @@ def print_table(rows: list[dict[str, Any]]) -> None:
             f"{r['recall_cells']:13.4f} {r['iou']:6.3f} {r['beyond_p95_m']:14.2f} "
             f"{r['outer_bound_iou']:15.3f} {r['iou_without_network']:15.3f} "
             f"{r['partition_iou']:13.3f} {r['partition_beyond_p95_m']:24.2f} "
-            f"{r['beyond_partition_p95_m']:24.2f}"
+            f"{r['beyond_partition_p95_m']:24.2f} {r['iou_uncut']:9.3f} "
+            f"{r['beyond_uncut_p95_m']:20.2f}"
         )
 
 

@@ -1,10 +1,12 @@
-"""What a sound heading x speed partition of the outer bound would cut from the served tube.
+"""What a sound heading x speed partition of the outer bound would cut from the uncut exact set.
 
 ``python scripts/partition_bound.py`` (~6 min): for the evaluation settings whose tubes reach more
-than 1.5 m beyond the rollout cells (the notch behind a car that can turn round), the served tube (the
-engine's, as `make evaluate` measures it) is cut to the union over instants 0.1 s apart of the
+than 1.5 m beyond the rollout cells (the notch behind a car that can turn round), the uncut exact
+tube (the engine's without its notch cut: what the service serves until its background refinement
+lands, `make evaluate`'s "uncut" column) is cut to the union over instants 0.1 s apart of the
 partition polygons of ``models.corridor_bound.partition_supports`` (one convex polygon per final
-heading x final speed bin, each grown by how far a car moves in half an instant; a bin count
+heading x final speed bin, each swept along its headings by how far a car moves in half an
+instant, ``swept_supports``; a bin count
 ending in ``c``, e.g. ``16x1c``, couples the speed over time by a linear programme per bin and
 direction, ``models.speed_lp``), and both are
 compared with the rollout cells as in ``models.evaluate`` (recall, IoU, "beyond" p95). It also
@@ -60,7 +62,7 @@ PLOTTED = ("urban_wide", "shrinking_wide_to_narrow", "low_confidence_urban")
 
 
 def plot(drawn: dict[str, tuple], path: Path) -> None:
-    """Per setting: the rollout cells, the served tube and the coupled partition tube at 3 s."""
+    """Per setting: the rollout cells, the uncut exact tube and the coupled partition tube at 3 s."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -77,7 +79,7 @@ def plot(drawn: dict[str, tuple], path: Path) -> None:
             label="rollout cells (reached)",
         )
         for geometry, colour, label in (
-            (served, "tab:red", "served tube"),
+            (served, "tab:red", "exact tube, uncut"),
             (bound, "black", "partition, speed coupled (proven)"),
         ):
             for polygon in getattr(geometry, "geoms", [geometry]):

@@ -424,8 +424,13 @@ class FRTScheduler:
             broken = self._executor
             if broken is None or isinstance(broken, ThreadPoolExecutor):
                 return False
-            log.error("FRT worker processes failed: computing exact sets on threads from now on")
+            log.error(
+                "FRT worker processes failed: computing exact sets on threads from now on, "
+                "without refinements"
+            )
             self._executor = ThreadPoolExecutor(self._workers, thread_name_prefix="frt-exact")
+            self.refinement = None  # on threads they would hold the event loop's GIL
+            self._refine_queue.clear()
             self._pending[key] = job
             self._running.add(key)
             self._started[key] = time.perf_counter()

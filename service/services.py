@@ -129,9 +129,11 @@ class Services:
             self.model_error = f"model not loaded: {exc}"
             log.error("model not loaded", extra={"model_path": str(path), "error": str(exc)})
             return
-        if self.settings.frt_executor == "process":
-            self._start_worker_processes(path, engine)
-        if self.settings.frt_notch_cut:
+        on_processes = self.settings.frt_executor == "process" and self._start_worker_processes(
+            path, engine
+        )
+        if self.settings.frt_notch_cut and on_processes:
+            # Not on threads: ~0.1 s of numpy per refinement would hold the event loop's GIL.
             self.scheduler.refinement = refine_by_notch_cut
         self.engine = engine
         self.model_name = model.card.name
@@ -147,9 +149,10 @@ class Services:
             },
         )
 
-    def _start_worker_processes(self, path: Path, engine: FRTEngine) -> None:
+    def _start_worker_processes(self, path: Path, engine: FRTEngine) -> bool:
         """Compute exact sets in worker processes (their engines loaded and warmed before the
-        server reports ready); if they cannot start, stay on threads and say why."""
+        server reports ready); if they cannot start, stay on threads and say why. Whether they
+        started."""
         start = time.perf_counter()
         workers = self.scheduler.workers
         try:
@@ -164,7 +167,7 @@ class Services:
                 "FRT worker processes not started: computing exact sets on threads",
                 extra={"error": repr(exc)},
             )
-            return
+            return False
         # A worker's first result costs ~20-50 ms more than the next ones (the first pickling there
         # and unpickling here): one per worker before any request.
         with contextlib.suppress(Exception):
@@ -177,6 +180,7 @@ class Services:
             "FRT worker processes started",
             extra={"workers": workers, "seconds": round(time.perf_counter() - start, 3)},
         )
+        return True
 
     def require_engine(self) -> FRTEngine:
         if self.engine is None:

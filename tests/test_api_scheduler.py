@@ -302,8 +302,10 @@ def test_a_broken_worker_pool_falls_back_to_threads() -> None:
     s = FRTScheduler(workers=1, cache_size=4, metrics=Metrics())
     s.start()
     s.use_executor(ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")))
+    s.refinement = lambda compute, result: None
     try:
         assert asyncio.run(s.wait(key("d", 1), _DiesInAWorker(), 60.0)) == "on a thread"
         assert run(s, key("d", 2), "still computing") == "still computing"
+        assert s.refinement is None  # on threads refinements would hold the event loop's GIL
     finally:
         s.shutdown()

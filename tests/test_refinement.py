@@ -201,8 +201,8 @@ def test_a_cut_set_comes_with_every_tube_drawn(engine: FRTEngine) -> None:
 def test_the_service_serves_the_cut_set_once_refined(start_server) -> None:
     """Through a real server on the shipped model: an agent whose predictor is unsure of the
     steering is ready with its uncut set, and soon after its tube shrinks to the cut one (inside
-    the first), ``frt_refinement`` going from pending to done; ``FRT_FRT_NOTCH_CUT=false`` keeps
-    the uncut set ("not_needed")."""
+    the first), ``frt_refinement`` going from pending to done; ``FRT_FRT_NOTCH_CUT=false``, or
+    exact sets on threads, keep the uncut set ("not_needed")."""
     import httpx
     import shapely.geometry
 
@@ -213,22 +213,25 @@ def test_the_service_serves_the_cut_set_once_refined(start_server) -> None:
         return shapely.geometry.shape(body["tube"]["K"])
 
     areas = {}
-    for cut in (True, False):
-        server = start_server(model_path=str(MODEL), frt_notch_cut=str(cut).lower())
+    for cut, executor in ((True, "process"), (False, "process"), (True, "thread")):
+        server = start_server(
+            model_path=str(MODEL), frt_notch_cut=str(cut).lower(), frt_executor=executor
+        )
+        refined = cut and executor == "process"  # never on threads (the event loop's GIL)
         with httpx.Client(base_url=server.url, timeout=30.0) as http:
             body = observation(0.0, speed=8.0, prediction=prediction(var=(50.0, 240.0)))
             ready = http.post("/v1/agents/w/observations?wait_frt_ms=10000", json=body).json()
             assert ready["frt_ready"] and ready["control_bounds"]["u1_max_start"] > 0.9
             first = tube_of(http, "w")
             state = http.get("/v1/agents/w").json()["frt_refinement"]
-            assert state in (("pending", "done") if cut else ("not_needed",))
+            assert state in (("pending", "done") if refined else ("not_needed",))
             smaller = first.area - 50.0
-            assert until(lambda: tube_of(http, "w").area < smaller, 10.0) == cut  # noqa: B023
+            assert until(lambda: tube_of(http, "w").area < smaller, 10.0) == refined  # noqa: B023
             state = http.get("/v1/agents/w").json()["frt_refinement"]
-            assert state == ("done" if cut else "not_needed")
+            assert state == ("done" if refined else "not_needed")
             last = tube_of(http, "w")
             assert last.difference(first).area < 1.0  # m²: inside the first (up to rounding)
-            areas[cut] = last.area
-            refined = 'frt_compute_seconds_count{kind="refined"}'
-            assert (refined in http.get("/metrics").text) == cut
+            areas[refined] = last.area
+            counted = 'frt_compute_seconds_count{kind="refined"}'
+            assert (counted in http.get("/metrics").text) == refined
     assert areas[True] < areas[False] - 50.0

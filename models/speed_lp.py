@@ -29,13 +29,16 @@ solved exactly by dynamic programming backwards in time (:func:`max_linear_over_
 best gain from node k on, J_k(v), is concave and piecewise linear in v (the value of a linear
 programme in its right-hand side), so it is kept as its breakpoints; the best next speed from v is
 the window [v - fall_k, v + rise_k] clipped at J_k+1's maximiser, which shifts the rising part of
-J_k+1 left by rise_k and the falling part right by fall_k, with a plateau between. All the
-programmes (every instant, bin and direction) run together in numpy, each row with its own
-constraints. Every optimum is raised by a relative 1e-6 plus 1e-6 for rounding.
+J_k+1 left by rise_k and the falling part right by fall_k, with a plateau between. Each programme
+(every instant, bin and direction, each with its own constraints) runs row by row in code compiled
+by numba: 7 ms for 4 608 programmes of 41 nodes where the same arithmetic on all rows at once in
+numpy took 210 ms (one-off, the refinement's programmes of urban_wide at 16 bins x 40 steps).
+Every optimum is raised by a relative 1e-6 plus 1e-6 for rounding.
 """
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 #: Added to every optimum for floating-point rounding: relative, and absolute (metres).
@@ -43,18 +46,80 @@ TOLERANCE_REL = 1e-6
 TOLERANCE_ABS = 1e-6
 
 
-def _value_at(x: np.ndarray, y: np.ndarray, at: np.ndarray) -> np.ndarray:
-    """A piecewise-linear function given by breakpoints (x [P, B] ascending, y [P, B]) at ``at``
-    [P] inside its domain, by interpolation on the piece that holds it (a zero-length piece, a
+@numba.njit(cache=True)
+def _value_at(x: np.ndarray, y: np.ndarray, n: int, at: float) -> float:
+    """A piecewise-linear function given by its first ``n`` breakpoints (x ascending, y) at ``at``
+    inside its domain, by interpolation on the piece that holds it (a zero-length piece, a
     repeated breakpoint, holds one value)."""
-    rows = np.arange(len(at))
-    right = np.clip((x < at[:, None]).sum(axis=1), 1, x.shape[1] - 1)
-    x0, x1 = x[rows, right - 1], x[rows, right]
-    y0, y1 = y[rows, right - 1], y[rows, right]
-    span = x1 - x0
-    real = span > 1e-12
-    fraction = np.where(real, (at - x0) / np.where(real, span, 1.0), 1.0)
-    return y0 + fraction * (y1 - y0)
+    if at <= x[0]:
+        return y[0]
+    for i in range(1, n):
+        if at <= x[i]:
+            span = x[i] - x[i - 1]
+            if span > 1e-12:
+                return y[i - 1] + (at - x[i - 1]) / span * (y[i] - y[i - 1])
+            return y[i]
+    return y[n - 1]
+
+
+@numba.njit(cache=True)
+def _max_linear_rows(
+    weights: np.ndarray,
+    node_lo: np.ndarray,
+    node_hi: np.ndarray,
+    rise: np.ndarray,
+    fall: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`max_linear_over_profiles`, row by row, compiled (numba)."""
+    rows, nodes = weights.shape
+    best = np.empty(rows)
+    empty = np.zeros(rows, dtype=np.bool_)
+    x, y = np.empty(nodes + 2), np.empty(nodes + 2)  # J_k's breakpoints (n of them)
+    wx, wy = np.empty(nodes + 3), np.empty(nodes + 3)  # the window maximum's (m)
+    for p in range(rows):
+        last = nodes - 1
+        lo, hi = node_lo[p, last], max(node_hi[p, last], node_lo[p, last])
+        none = node_lo[p, last] > node_hi[p, last]
+        x[0], x[1] = lo, hi
+        y[0], y[1] = weights[p, last] * lo, weights[p, last] * hi
+        n = 2
+        for k in range(nodes - 2, -1, -1):
+            # Window maximum: the rising part (up to the maximiser) moves left by rise, the falling
+            # part right by fall; the maximiser's breakpoint is kept on both sides (a plateau).
+            peak = 0
+            for i in range(1, n):
+                if y[i] > y[peak]:
+                    peak = i
+            m = 0
+            for i in range(peak + 1):
+                wx[m], wy[m] = x[i] - rise[p, k], y[i]
+                m += 1
+            for i in range(peak, n):
+                wx[m], wy[m] = x[i] + fall[p, k], y[i]
+                m += 1
+            lo = max(wx[0], node_lo[p, k])
+            hi = min(wx[m - 1], node_hi[p, k])
+            if lo > hi:
+                none = True  # the row goes on harmlessly; its answer is -inf
+            hi = max(hi, lo)
+            # Clipped to [lo, hi], each breakpoint once (the clip piles them up at its ends).
+            x[0], y[0] = lo, _value_at(wx, wy, m, lo)
+            n = 1
+            for i in range(m):
+                if lo < wx[i] < hi and wx[i] > x[n - 1]:
+                    x[n], y[n] = wx[i], wy[i]
+                    n += 1
+            if hi > x[n - 1] or n == 1:
+                x[n], y[n] = hi, _value_at(wx, wy, m, hi)
+                n += 1
+            for i in range(n):
+                y[i] += weights[p, k] * x[i]
+        top = y[0]
+        for i in range(1, n):
+            top = max(top, y[i])
+        best[p] = -np.inf if none else top + TOLERANCE_REL * abs(top) + TOLERANCE_ABS
+        empty[p] = none
+    return best, empty
 
 
 def max_linear_over_profiles(
@@ -68,34 +133,13 @@ def max_linear_over_profiles(
     node_hi[p, k]] and v_k+1 - v_k in [-fall[p, k], rise[p, k]] (``weights``, ``node_lo``,
     ``node_hi`` [P, S + 1]; ``rise``, ``fall`` [P, S], both >= 0). Returns the optima [P] and [P]
     True where no v satisfies the constraints (optimum -inf there)."""
-    nodes = weights.shape[1]
-    empty = node_lo[:, -1] > node_hi[:, -1]
-    x = np.stack([node_lo[:, -1], np.maximum(node_hi[:, -1], node_lo[:, -1])], axis=1)
-    y = weights[:, -1:] * x
-    for k in range(nodes - 2, -1, -1):
-        # Window maximum: the rising part (up to the maximiser) moves left by rise, the falling part
-        # right by fall; the maximiser's breakpoint is kept on both sides (a plateau between).
-        peak = np.argmax(y, axis=1)
-        left = np.arange(x.shape[1] + 1)[None, :] <= peak[:, None]
-        x = np.where(
-            left,
-            np.concatenate([x, x[:, -1:]], axis=1) - rise[:, k : k + 1],
-            np.concatenate([x[:, :1], x], axis=1) + fall[:, k : k + 1],
-        )
-        y = np.where(
-            left, np.concatenate([y, y[:, -1:]], axis=1), np.concatenate([y[:, :1], y], axis=1)
-        )
-        lo = np.maximum(x[:, 0], node_lo[:, k])
-        hi = np.minimum(x[:, -1], node_hi[:, k])
-        empty |= lo > hi
-        hi = np.maximum(hi, lo)  # an empty row goes on harmlessly; its answer is -inf
-        y_lo, y_hi = _value_at(x, y, lo), _value_at(x, y, hi)
-        y = np.where(x < lo[:, None], y_lo[:, None], np.where(x > hi[:, None], y_hi[:, None], y))
-        x = np.clip(x, lo[:, None], hi[:, None])
-        y = y + weights[:, k : k + 1] * x
-    best = y.max(axis=1)
-    best = best + TOLERANCE_REL * np.abs(best) + TOLERANCE_ABS
-    return np.where(empty, -np.inf, best), empty
+
+    def prepared(a: np.ndarray) -> np.ndarray:
+        return np.ascontiguousarray(a, dtype=np.float64)
+
+    return _max_linear_rows(  # type: ignore[no-any-return]
+        prepared(weights), prepared(node_lo), prepared(node_hi), prepared(rise), prepared(fall)
+    )
 
 
 def coupled_gain(
@@ -136,3 +180,10 @@ def coupled_gain(
     )
     excess = np.einsum("nsm,ns->nm", np.abs(g), chord_excess)
     return best.reshape(n, directions) + excess, empty.reshape(n, directions).any(axis=1)
+
+
+def compile_speed_programme() -> None:
+    """Compile (or load from numba's cache) the dynamic programme before it is needed: a worker
+    process calls this at start-up, so no refinement waits for the compiler (~1.5 s here)."""
+    one = np.zeros((1, 2))
+    max_linear_over_profiles(one, one, one + 1.0, one[:, :1] + 1.0, one[:, :1] + 1.0)

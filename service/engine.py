@@ -77,12 +77,14 @@ SWEEPS_PER_WINDOW = 4
 #: background, ``FRT_FRT_NOTCH_CUT``): instants whose heading interval passes NOTCH_HEADING (the car
 #: may head backwards, so the set may have a notch behind it) are cut to the speed-coupled
 #: partition of NOTCH_BINS final-heading bins, its speed programmes on NOTCH_STEPS sub-intervals
-#: (``models.corridor_bound.partition_supports``). 12 x 30 rather than 8 x 20: "beyond" p95 at
-#: 3 s on urban_wide 4.95 m instead of 7.85 m for ~130 instead of ~60 ms of a worker's spare time
-#: (``scripts/partition_bound.py --bins 12x1c --coupled-steps 30``, one-off).
+#: (``models.corridor_bound.partition_supports``). 32 x 90: with the speed programme compiled
+#: (``models.speed_lp``) a wide set cut so costs ~0.2 s in-process, what 12 x 30 cost in numpy;
+#: one-off runs of the evaluation on its seven notch settings (``--only``) gave "beyond" p95 mean
+#: 2.20 m at 12 x 30, 1.93 at 16 x 45, 1.69 at 32 x 60 and 1.60 m at 32 x 90 (11, 11, 11 and 9 of
+#: their 21 rows over 1.5 m).
 NOTCH_HEADING = math.pi / 2
-NOTCH_BINS = 12
-NOTCH_STEPS = 30
+NOTCH_BINS = 32
+NOTCH_STEPS = 90
 
 
 @dataclass(frozen=True)

@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from models.contract import N_INPUTS
+from models.speed_lp import compile_speed_programme
 from service.engine import BoxTubeSet, FieldTubeSet, FRTEngine, FRTSet, Pose
 from service.memory import freeze_start_up_objects, keep_freed_memory
 from service.pipe_pool import PipePool
@@ -105,9 +106,11 @@ def init_worker(model_path: str, nice: int, parent_pid: int, policy: str = "idle
     from service.model_runtime import ValueModel
 
     _engine = FRTEngine(ValueModel.load(Path(model_path)))
-    # The first runtime call and contour are slower than the rest: take them before any request.
+    # The first runtime call and contour are slower than the rest, and the partition's dynamic
+    # programme is compiled on first use (numba): take them before any request.
     with contextlib.suppress(Exception):  # bounds outside a model's ranges: warm on a real set
         warm_up_task(_engine)()
+    compile_speed_programme()
     if _engine.use_projection:  # the runtime's memory arena sized for the largest sets up front
         _engine.model.evaluate_projection(np.zeros((4 * _engine.max_nodes, N_INPUTS), np.float32))
     threading.Thread(target=_exit_with_parent, args=(parent_pid,), daemon=True).start()

@@ -56,7 +56,7 @@ class Settings(BaseSettings):
     #: Refine exact sets whose heading interval passes +-pi/2 (the car may turn round): once the
     #: uncut set is ready (observation -> ready unchanged), a worker with nothing else to do cuts
     #: it to the speed-coupled partition (``service.engine.NotchCut``) and the cut set replaces it.
-    #: Tighter, still sound sets behind such cars for ~0.13 s of a worker's spare time. Only with
+    #: Tighter, still sound sets behind such cars for ~0.2 s of a worker's spare time. Only with
     #: worker processes (``frt_executor``): on threads it would hold the event loop's GIL.
     frt_notch_cut: bool = True
     #: Exact FRTs kept in memory, keyed by (agent, FRT version, inputs): at most the two latest

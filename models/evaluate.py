@@ -69,6 +69,10 @@ from service.settings import Settings
 SERVED_NOTCH_CUT = bool(Settings.model_fields["frt_notch_cut"].default)
 
 TUBE_TIMES = (1.0, 2.0, 3.0)
+#: The partition outer reference (``partition_tubes``): 32 final-heading bins, speed programmes on
+#: 120 sub-intervals, instants 0.05 s apart (~1 s per setting with the compiled programme; the
+#: round before, in numpy, 16 bins, 60 sub-intervals, 0.1 s).
+PARTITION_REFERENCE: dict[str, Any] = {"heading_bins": 32, "steps": 120, "instant_s": 0.05}
 #: Issue 3's target for "beyond" (95th percentile, metres): rows over it are counted.
 BEYOND_TARGET_M = 1.5
 CELL_M = 0.25
@@ -227,7 +231,9 @@ def evaluate_setting(
         else frt
     )
     ob = engine.outer(setting.v_start, bounds)
-    proven = partition_tubes(setting.v_start, bounds, TUBE_TIMES, float(ob.sweep_speed_max.max()))
+    proven = partition_tubes(
+        setting.v_start, bounds, TUBE_TIMES, float(ob.sweep_speed_max.max()), **PARTITION_REFERENCE
+    )
     rows = []
     artefacts: dict[str, Any] = {"frt": frt, "rollouts": roll, "outer": ob}
     for t, reference in zip(TUBE_TIMES, swept_cells(roll, TUBE_TIMES), strict=True):
@@ -521,6 +527,7 @@ def main() -> None:
         "dt_s": DT,
         "seed": args.seed,
         "notch_cut": {"on": args.notch_cut, "bins": NOTCH_BINS, "steps": NOTCH_STEPS},
+        "partition_reference": PARTITION_REFERENCE,
         "summary": summary,
         "rows": rows,
     }

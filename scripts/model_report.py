@@ -39,6 +39,7 @@ def render(card: dict) -> str:
         'the service\'s tube reaches beyond it (95th percentile over cells, as "beyond"): that '
         "part is proven unreachable, whatever the rollouts covered.",
         "",
+        *_partition(acc),
         *_served(acc),
         "",
         "| setting | t [s] | recall (states) | recall (cells) | IoU | beyond p95 [m] "
@@ -107,6 +108,19 @@ def render(card: dict) -> str:
             f"{proj['calibration_samples']} reachable (s, x, y) of the true dynamics."
         )
     return "\n".join(lines) + "\n"
+
+
+def _partition(acc: dict) -> list[str]:
+    """How fine the partition reference is, when the card says."""
+    ref = acc.get("partition_reference")
+    if not ref:
+        return []
+    return [
+        f"The partition reference: {ref['heading_bins']} final-heading bins, speed programmes on "
+        f"{ref['steps']} sub-intervals, instants {ref['instant_s']} s apart, each bin swept along "
+        "its headings to the instants' midpoints.",
+        "",
+    ]
 
 
 def _served(acc: dict) -> list[str]:

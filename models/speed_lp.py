@@ -64,13 +64,12 @@ def _value_at(x: np.ndarray, y: np.ndarray, n: int, at: float) -> float:
 
 @numba.njit(cache=True)
 def _max_linear_rows(
-    weights: np.ndarray,
-    node_lo: np.ndarray,
-    node_hi: np.ndarray,
-    rise: np.ndarray,
-    fall: np.ndarray,
+    weights: np.ndarray, nodes_lo_hi: np.ndarray, rise_fall: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`max_linear_over_profiles`, row by row, compiled (numba)."""
+    """:func:`max_linear_over_profiles`, row by row, compiled (numba); the node bounds and the
+    rates each stacked ([2, P, S + 1] and [2, P, S])."""
+    node_lo, node_hi = nodes_lo_hi[0], nodes_lo_hi[1]
+    rise, fall = rise_fall[0], rise_fall[1]
     rows, nodes = weights.shape
     best = np.empty(rows)
     empty = np.zeros(rows, dtype=np.bool_)
@@ -134,11 +133,10 @@ def max_linear_over_profiles(
     ``node_hi`` [P, S + 1]; ``rise``, ``fall`` [P, S], both >= 0). Returns the optima [P] and [P]
     True where no v satisfies the constraints (optimum -inf there)."""
 
-    def prepared(a: np.ndarray) -> np.ndarray:
-        return np.ascontiguousarray(a, dtype=np.float64)
-
     return _max_linear_rows(  # type: ignore[no-any-return]
-        prepared(weights), prepared(node_lo), prepared(node_hi), prepared(rise), prepared(fall)
+        np.ascontiguousarray(weights, dtype=np.float64),
+        np.stack([node_lo, node_hi]).astype(np.float64),
+        np.stack([rise, fall]).astype(np.float64),
     )
 
 

@@ -89,10 +89,11 @@ NOTCH_STEPS = 90
 
 @dataclass(frozen=True)
 class NotchCut:
-    """The partition's supports at the instants of a set it cuts (``cut``; [J, B, M] and [J, B]
-    ``empty`` bins, rows of other instants unused) with each bin's headings ([J, B, 2]); per
+    """The partition at the instants of a set it cuts (``cut`` [J], C of them): supports [C, B, M],
+    ``empty`` bins [C, B] and each bin's headings [C, B, 2], one row per cut instant in order; per
     instant the farthest a car moves in half an instant either side of it (``reach_m`` [J]), and
-    how far its heading turns meanwhile."""
+    how far its heading turns meanwhile. (Only the cut instants' rows: a cached refined set keeps
+    them for its slices, ~60 kB.)"""
 
     cut: np.ndarray
     supports: np.ndarray
@@ -504,10 +505,11 @@ class FieldTubeSet(FRTSet):
         assert notch is not None
         reach = float(notch.reach_m[j])
         if notch.cut[j]:
+            i = int(np.count_nonzero(notch.cut[:j]))  # its row among the cut instants
             swept = swept_supports(
-                notch.supports[j], notch.headings[j], reach, notch.turn_rad, NOTCH_DIRECTIONS
+                notch.supports[i], notch.headings[i], reach, notch.turn_rad, NOTCH_DIRECTIONS
             )
-            region = bins_union(swept, notch.empty[j], NOTCH_DIRECTIONS)
+            region = bins_union(swept, notch.empty[i], NOTCH_DIRECTIONS)
         else:
             polygon = shapely.Polygon(self.bound.polygons_at([self.bound_rows[j]])[0])
             region = grown_to_hold(polygon, reach)
@@ -1020,11 +1022,7 @@ class FRTEngine:
             steps=NOTCH_STEPS,
             coupled_speed=True,
         )
-        supports = np.full((len(rows), NOTCH_BINS, len(NOTCH_DIRECTIONS)), np.inf)
-        empties = np.zeros((len(rows), NOTCH_BINS), dtype=bool)
-        supports[cut], empties[cut] = support, empty
-        headings = np.zeros((len(rows), NOTCH_BINS, 2))
-        headings[cut] = final_heading_bins(bounds, ob.times[rows][cut], NOTCH_BINS, self.horizon)
+        headings = final_heading_bins(bounds, ob.times[rows][cut], NOTCH_BINS, self.horizon)
         # The fastest speed of the sweeps within half an instant of each instant.
         k = self.outer_steps_per_slice
         speed = ob.sweep_speed_max
@@ -1032,8 +1030,8 @@ class FRTEngine:
         reach = np.array([speed[max(r - k // 2, 0) : r + (k + 1) // 2].max() * half for r in rows])
         return NotchCut(
             cut=cut,
-            supports=supports,
-            empty=empties,
+            supports=support,
+            empty=empty,
             headings=headings,
             reach_m=reach,
             turn_rad=max_turn_rate(bounds) * half,

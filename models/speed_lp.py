@@ -66,21 +66,24 @@ def _value_at(x: np.ndarray, y: np.ndarray, n: int, at: float) -> float:
 def _max_linear_rows(
     weights: np.ndarray, nodes_lo_hi: np.ndarray, rise_fall: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`max_linear_over_profiles`, row by row, compiled (numba); the node bounds and the
-    rates each stacked ([2, P, S + 1] and [2, P, S])."""
+    """:func:`max_linear_over_profiles` compiled (numba), programme by programme: M objectives
+    (``weights`` [P, M, S + 1]) per row of constraints, the node bounds and the rates each stacked
+    ([2, P, S + 1] and [2, P, S]). Returns [P, M] optima and empty flags."""
     node_lo, node_hi = nodes_lo_hi[0], nodes_lo_hi[1]
     rise, fall = rise_fall[0], rise_fall[1]
-    rows, nodes = weights.shape
-    best = np.empty(rows)
-    empty = np.zeros(rows, dtype=np.bool_)
+    rows, objectives, nodes = weights.shape
+    best = np.empty((rows, objectives))
+    empty = np.zeros((rows, objectives), dtype=np.bool_)
     x, y = np.empty(nodes + 2), np.empty(nodes + 2)  # J_k's breakpoints (n of them)
     wx, wy = np.empty(nodes + 3), np.empty(nodes + 3)  # the window maximum's (m)
-    for p in range(rows):
+    for row in range(rows * objectives):
+        p, o = row // objectives, row % objectives
+        w = weights[p, o]
         last = nodes - 1
         lo, hi = node_lo[p, last], max(node_hi[p, last], node_lo[p, last])
         none = node_lo[p, last] > node_hi[p, last]
         x[0], x[1] = lo, hi
-        y[0], y[1] = weights[p, last] * lo, weights[p, last] * hi
+        y[0], y[1] = w[last] * lo, w[last] * hi
         n = 2
         for k in range(nodes - 2, -1, -1):
             # Window maximum: the rising part (up to the maximiser) moves left by rise, the falling
@@ -112,12 +115,12 @@ def _max_linear_rows(
                 x[n], y[n] = hi, _value_at(wx, wy, m, hi)
                 n += 1
             for i in range(n):
-                y[i] += weights[p, k] * x[i]
+                y[i] += w[k] * x[i]
         top = y[0]
         for i in range(1, n):
             top = max(top, y[i])
-        best[p] = -np.inf if none else top + TOLERANCE_REL * abs(top) + TOLERANCE_ABS
-        empty[p] = none
+        best[p, o] = -np.inf if none else top + TOLERANCE_REL * abs(top) + TOLERANCE_ABS
+        empty[p, o] = none
     return best, empty
 
 
@@ -133,11 +136,12 @@ def max_linear_over_profiles(
     ``node_hi`` [P, S + 1]; ``rise``, ``fall`` [P, S], both >= 0). Returns the optima [P] and [P]
     True where no v satisfies the constraints (optimum -inf there)."""
 
-    return _max_linear_rows(  # type: ignore[no-any-return]
-        np.ascontiguousarray(weights, dtype=np.float64),
-        np.stack([node_lo, node_hi]).astype(np.float64),
-        np.stack([rise, fall]).astype(np.float64),
+    best, empty = _max_linear_rows(
+        np.ascontiguousarray(weights, dtype=np.float64)[:, None, :],
+        np.stack([node_lo, node_hi]).astype(np.float64, copy=False),
+        np.stack([rise, fall]).astype(np.float64, copy=False),
     )
+    return best[:, 0], empty[:, 0]
 
 
 def coupled_gain(
@@ -165,19 +169,13 @@ def coupled_gain(
     weights[:, 1:] += half
     chord_excess = (rise + fall) * h[:, None] / 8.0  # e_k = (u - l) h^2 / 8, [N, S]
 
-    def per_direction(a: np.ndarray) -> np.ndarray:
-        """[N, K] constraint rows repeated for each direction: [N * M, K]."""
-        return np.repeat(a, directions, axis=0)
-
-    best, empty = max_linear_over_profiles(
-        weights.transpose(0, 2, 1).reshape(n * directions, steps + 1),
-        per_direction(np.maximum(node_lo, 0.0)),
-        per_direction(node_hi),
-        per_direction(rise),
-        per_direction(fall),
+    best, empty = _max_linear_rows(  # one programme per row and direction, sharing the row's
+        np.ascontiguousarray(weights.transpose(0, 2, 1)),
+        np.stack([np.maximum(node_lo, 0.0), node_hi]).astype(np.float64, copy=False),
+        np.stack([rise, fall]).astype(np.float64, copy=False),
     )
     excess = np.einsum("nsm,ns->nm", np.abs(g), chord_excess)
-    return best.reshape(n, directions) + excess, empty.reshape(n, directions).any(axis=1)
+    return best + excess, empty.any(axis=1)
 
 
 def compile_speed_programme() -> None:

@@ -10,7 +10,7 @@ DURATION ?= 60
 MODEL ?= models/frt_unicycle.onnx
 FIND_LINKS := $(if $(wildcard /opt/wheels),--find-links /opt/wheels,)
 
-.PHONY: venv serve test lint format train train-smoke evaluate evaluate-full compare-authors network-diagnostics bench load scale-test scenarios plots clean
+.PHONY: venv serve test lint format train train-smoke evaluate evaluate-full compare-authors network-diagnostics bench bench-sustained load scale-test scenarios plots clean
 
 $(STAMP): pyproject.toml client/pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -68,6 +68,10 @@ network-diagnostics: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python scripts/bench.py --model $(MODEL)
+
+bench-sustained: $(STAMP)
+	$(BIN)/python scripts/bench.py --model $(MODEL) --sustained-only --sustained-runs 5 \
+		--out results/bench_sustained_runs.json
 
 load: $(STAMP)
 	$(BIN)/python scripts/load.py --url $(URL) --duration $(DURATION)

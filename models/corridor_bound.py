@@ -310,7 +310,8 @@ def partition_tubes(
     union over instants ``instant_s`` apart of their bin polygons (:func:`partition_supports`),
     each swept along its headings by ``speed_max * instant_s / 2`` (:func:`swept_supports`: the
     farthest a car moves to the nearest instant; ``speed_max`` must bound the speed over the
-    horizon), and the initial disc grown by as much for the times before the first instant. Sound (tests/test_corridor_bound.py), not convex: with
+    horizon; the last instant before t only, since nothing after t belongs to the tube), and the
+    initial disc grown by as much for the times before the first instant. Sound (tests/test_corridor_bound.py), not convex: with
     the speed coupled it cuts most of the notch behind a car that can turn round.
     ``partitioned_from_s``: instants before it take the interval outer bound's convex polygon
     instead (early sets have no notch; the partition's cost is in the instants it runs on)."""
@@ -337,16 +338,22 @@ def partition_tubes(
     )
     headings = np.repeat(headings, speed_bins, axis=1)
     parts = [grown_to_hold(shapely.Point(0.0, 0.0), initial_set.radius_m + grow)]
+    #: Per instant, its region for a tube that ends there: nothing after the instant.
+    ends = [parts[0]]
     j = 0
     for s in instants:
         if convex is not None and s < partitioned_from_s - 1e-9:
             region = shapely.Polygon(convex.polygons_at([convex.nearest_row(s)])[0])
             parts.append(grown_to_hold(region, grow))
+            ends.append(parts[-1])
             continue
         swept = swept_supports(support[j], headings[j], grow, turn, directions)
         parts.append(bins_union(swept, empty[j], directions))
+        before = swept_supports(support[j], headings[j], grow, turn, directions, after=False)
+        ends.append(bins_union(before, empty[j], directions))
         j += 1
-    return [shapely.union_all(parts[: round(t / instant_s) + 1]) for t in t_ends]
+    last = [round(t / instant_s) for t in t_ends]
+    return [shapely.union_all([*parts[:k], ends[k]]) for k in last]
 
 
 def main() -> None:
@@ -407,11 +414,16 @@ def swept_supports(
     reach_m: float,
     turn_rad: float,
     directions: np.ndarray = DIRECTIONS,
+    before: bool = True,
+    after: bool = True,
 ) -> np.ndarray:
     """Supports [B, M] of regions that hold every position within ``reach_m`` of travel, before or
     after, of one at a bin's instant: each bin's polygon (``support`` [B, M]) plus the hull of
     the double sector of radius ``reach_m`` along its headings (``headings`` [B, 2], widened by
-    ``turn_rad``, how far the heading turns meanwhile).
+    ``turn_rad``, how far the heading turns meanwhile). ``before`` / ``after`` False leaves that
+    half out: a tube that ends at the instant needs no position after it (``after=False``: only
+    the backward sector, thinner where the car heads away from the set), an instant's own set
+    neither.
 
     A car in bin b at instant s whose speed stays below V moves, during [s - D, s + D], by the
     integral of v (cos theta, sin theta) with theta inside the widened bin and |v| <= V: a vector
@@ -420,9 +432,12 @@ def swept_supports(
     support in direction phi is reach_m max(0, max cos(theta - phi), max cos(theta + pi - phi)):
     thinner than the disc of that radius across a bin's headings, where the notch's walls are."""
     lo, hi = headings[:, 0] - turn_rad, headings[:, 1] + turn_rad
-    forward = cos_max_towards(lo, hi, directions)
-    backward = cos_max_towards(lo + math.pi, hi + math.pi, directions)
-    return support + reach_m * np.maximum(np.maximum(forward, backward), 0.0)
+    sweep = np.zeros_like(support)
+    if after:
+        sweep = np.maximum(sweep, cos_max_towards(lo, hi, directions))
+    if before:
+        sweep = np.maximum(sweep, cos_max_towards(lo + math.pi, hi + math.pi, directions))
+    return support + reach_m * sweep
 
 
 def partition_supports(

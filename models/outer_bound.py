@@ -90,11 +90,9 @@ def candidate_vertices(
     px = inverse[None, :, 0, 0] * rhs_a + inverse[None, :, 0, 1] * rhs_b
     py = inverse[None, :, 1, 0] * rhs_a + inverse[None, :, 1, 1] * rhs_b
     slack = 1e-7 * (1 + np.abs(supports))[:, None, :]
-    feasible = np.all(
-        px[:, :, None] * np.cos(directions) + py[:, :, None] * np.sin(directions)
-        <= supports[:, None, :] + slack,
-        axis=2,
-    )
+    normals = np.stack([np.cos(directions), np.sin(directions)])  # [2, M]
+    reach = np.stack([px, py], axis=-1) @ normals  # [K, P, M]
+    feasible = np.all(reach <= supports[:, None, :] + slack, axis=2)
     return px, py, feasible
 
 
@@ -103,12 +101,13 @@ def half_plane_polygons(directions: np.ndarray, supports: np.ndarray) -> list[np
     for every row k of ``supports`` [K, M] at once (``candidate_vertices``, sorted by angle about
     their centre); each polygon is convex."""
     px, py, feasible = candidate_vertices(directions, np.asarray(supports, dtype=float))
-    polygons = []
-    for k in range(len(px)):
-        pts = np.stack([px[k][feasible[k]], py[k][feasible[k]]], axis=1)
-        centre = pts.mean(axis=0)
-        polygons.append(pts[np.argsort(np.arctan2(pts[:, 1] - centre[1], pts[:, 0] - centre[0]))])
-    return polygons
+    count = feasible.sum(axis=1)
+    centre_x = np.where(feasible, px, 0.0).sum(axis=1) / np.maximum(count, 1)
+    centre_y = np.where(feasible, py, 0.0).sum(axis=1) / np.maximum(count, 1)
+    angle = np.arctan2(py - centre_y[:, None], px - centre_x[:, None])
+    order = np.argsort(np.where(feasible, angle, np.inf), axis=1)  # the vertices first, in turn
+    xs, ys = np.take_along_axis(px, order, axis=1), np.take_along_axis(py, order, axis=1)
+    return [np.stack([xs[k, :n], ys[k, :n]], axis=1) for k, n in enumerate(count.tolist())]
 
 
 def half_plane_polygon(directions: np.ndarray, support: np.ndarray) -> np.ndarray:

@@ -448,7 +448,7 @@ class FieldTubeSet(FRTSet):
         #: Whether some instant's heading interval passes +-NOTCH_HEADING: a cut could tighten
         #: this set (``FRTEngine.exact(notch_cut=True)``).
         self.notch_possible = notch_possible
-        self._notch_regions: dict[int, BaseGeometry] = {}
+        self._notch_regions: dict[tuple[int, bool, bool], BaseGeometry] = {}
         self._notch_tubes: dict[int, BaseGeometry] = {}
         self.lattice = lattice
         self.instant = instant
@@ -493,40 +493,53 @@ class FieldTubeSet(FRTSet):
             self._tubes[j] = k_set
         return k_set
 
-    def _notch_region(self, j: int) -> BaseGeometry:
-        """Every position reachable within half an instant of s_j: where the set is cut at s_j,
-        the partition's bins each swept along its headings by how far a car moves in half an
-        instant (``swept_supports``); else the instant's convex outer polygon grown by as much."""
-        with self._lock:
-            cached = self._notch_regions.get(j)
-        if cached is not None:
-            return cached
+    def _notch_region(self, j: int, before: bool = True, after: bool = True) -> BaseGeometry:
+        """Every position reachable within half an instant of s_j, ``before`` and/or ``after`` it
+        (neither: at s_j itself): where the set is cut at s_j, the partition's bins each swept
+        along its headings by how far a car moves in half an instant (``swept_supports``); else
+        the instant's convex outer polygon grown by as much either way."""
         notch = self.notch
         assert notch is not None
+        key = (j, before, after) if notch.cut[j] else (j, True, True)
+        with self._lock:
+            cached = self._notch_regions.get(key)
+        if cached is not None:
+            return cached
         reach = float(notch.reach_m[j])
         if notch.cut[j]:
             i = int(np.count_nonzero(notch.cut[:j]))  # its row among the cut instants
             swept = swept_supports(
-                notch.supports[i], notch.headings[i], reach, notch.turn_rad, NOTCH_DIRECTIONS
+                notch.supports[i],
+                notch.headings[i],
+                reach,
+                notch.turn_rad,
+                NOTCH_DIRECTIONS,
+                before=before,
+                after=after,
             )
             region = bins_union(swept, notch.empty[i], NOTCH_DIRECTIONS)
         else:
             polygon = shapely.Polygon(self.bound.polygons_at([self.bound_rows[j]])[0])
             region = grown_to_hold(polygon, reach)
         with self._lock:
-            self._notch_regions[j] = region
+            self._notch_regions[key] = region
         return region
 
     def _notch_tube(self, j: int) -> BaseGeometry:
-        """Every position reached during [0, s_j]: the union of the instants' regions up to s_j
-        (grown from the largest union already built)."""
+        """Every position reached during [0, s_j]: the tube to s_(j-1), the half instant after
+        s_(j-1) and the half instant before s_j (grown from the largest tube already built;
+        nothing after s_j, and each instant's two halves apart, which is thinner than both
+        together where the car heads away from the set)."""
         with self._lock:
             built = dict(self._notch_tubes)
         if j in built:
             return built[j]
         start = max((i for i in built if i < j), default=-1)
-        parts = [self._notch_region(i) for i in range(start + 1, j + 1)]
-        tube = shapely.union_all(parts if start < 0 else [built[start], *parts])
+        tube = built[start] if start >= 0 else self._notch_region(0, after=False)
+        for i in range(max(start, 0) + 1, j + 1):
+            tube = shapely.union_all(
+                [tube, self._notch_region(i - 1, before=False), self._notch_region(i, after=False)]
+            )
         with self._lock:
             self._notch_tubes[j] = tube
         return tube
@@ -614,7 +627,7 @@ class FieldTubeSet(FRTSet):
             polygon = shapely.Polygon(self.bound.polygons_at([self.bound_rows[j]])[0])
             k_set = polygon if self.coarse[j] else k_set.intersection(polygon)
         if self.notch is not None and self.notch.cut[j]:
-            k_set = k_set.intersection(self._notch_region(j))
+            k_set = k_set.intersection(self._notch_region(j, before=False, after=False))
         with self._lock:
             self._slices[j] = k_set
         return k_set
@@ -637,7 +650,9 @@ class FieldTubeSet(FRTSet):
             k_set = k_set.intersection(polygon)
         if self.notch is not None and (self.notch.cut[j] or self.notch.cut[j - 1]):
             k_set = k_set.intersection(
-                shapely.union(self._notch_region(j - 1), self._notch_region(j))
+                shapely.union(
+                    self._notch_region(j - 1, before=False), self._notch_region(j, after=False)
+                )
             )
         with self._lock:
             self._intervals[j] = k_set

@@ -232,7 +232,8 @@ def test_positions_the_projection_is_lifted_at_are_unreachable_for_every_heading
 def test_a_swept_bin_holds_every_short_path_from_it(seed: int) -> None:
     """``swept_supports``: from any point of a bin's polygon, a path of at most ``reach`` metres
     (either way in time) whose heading stays within the bin's headings widened by ``turn`` ends
-    inside the swept polygon; and sweeping is thinner than growing by a disc across the headings."""
+    inside the swept polygon, and inside the half swept that way in time alone (``before`` /
+    ``after``); and sweeping is thinner than growing by a disc across the headings."""
     from models.corridor_bound import DIRECTIONS, swept_supports
     from models.outer_bound import half_plane_polygons
 
@@ -246,6 +247,15 @@ def test_a_swept_bin_holds_every_short_path_from_it(seed: int) -> None:
                              for a in DIRECTIONS]])  # fmt: skip
         swept = swept_supports(support, headings, reach, turn)
         polygon = shapely.Polygon(half_plane_polygons(DIRECTIONS, swept)[0])
+        halves = {  # the sign of time: +1 after the instant, -1 before it
+            sign: shapely.Polygon(
+                half_plane_polygons(
+                    DIRECTIONS,
+                    swept_supports(support, headings, reach, turn, before=sign < 0, after=sign > 0),
+                )[0]
+            )
+            for sign in (-1.0, 1.0)
+        }
         starts = shapely.get_coordinates(box.exterior)[:-1]
         for start in starts:
             steps = 50
@@ -259,5 +269,7 @@ def test_a_swept_bin_holds_every_short_path_from_it(seed: int) -> None:
             sign = rng.choice([-1.0, 1.0])  # after the instant, or (backwards) before it
             ends = start + sign * np.cumsum(moves, axis=0)
             assert shapely.covers(polygon.buffer(1e-9), shapely.points(ends)).all()
+            assert shapely.covers(halves[sign].buffer(1e-9), shapely.points(ends)).all()
         disc = shapely.Polygon(half_plane_polygons(DIRECTIONS, support + reach)[0])
         assert polygon.area <= disc.area + 1e-9
+        assert halves[-1.0].area < polygon.area and halves[1.0].area < polygon.area

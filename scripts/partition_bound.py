@@ -1,6 +1,6 @@
 """What a sound heading x speed partition of the outer bound would cut from the uncut exact set.
 
-``python scripts/partition_bound.py`` (~6 min): for the evaluation settings whose tubes reach more
+``python scripts/partition_bound.py`` (~20 s): for the evaluation settings whose tubes reach more
 than 1.5 m beyond the rollout cells (the notch behind a car that can turn round), the uncut exact
 tube (the engine's without its notch cut: what the service serves until its background refinement
 lands, `make evaluate`'s "uncut" column) is cut to the union over instants 0.1 s apart of the

@@ -38,6 +38,10 @@ from models.outer_bound import cos_max_towards, half_plane_polygons, outer_bound
 #: Support directions of the per-state position polygon.
 DIRECTIONS = np.arange(16) * (2 * math.pi / 16)
 
+#: Where in [0, t] a partition's waypoint bins pin the heading (``partition_supports``): early,
+#: where wide steering bounds let the car turn hard and the notch's walls are made.
+WAYPOINT_AT = 0.2
+
 
 def _hull(ends: np.ndarray, pad: np.ndarray, upper: bool) -> np.ndarray:
     """Outward hull over each sub-interval of a function known at its nodes [N, S + 1], with
@@ -113,11 +117,20 @@ class _Corridors:
         initial_set: InitialSet,
         coupled_speed: bool = False,
         directions: np.ndarray = DIRECTIONS,
+        waypoint: tuple[int, np.ndarray, np.ndarray] | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Support values [N, M] in ``directions`` of a convex polygon that contains every position
         at time t of a trajectory from {l <= c} [N] whose final (unwrapped) heading lies in
         ``theta_f`` = (lo, hi) [N] and final speed in ``speed_f`` = (lo, hi) [N]; and [N] True where
         no such trajectory exists (the corridors are empty somewhere).
+
+        ``waypoint`` = (node k, lo [N], hi [N]): only trajectories whose (unwrapped) heading at
+        node k lies in [lo, hi]. theta' = u1 bounds the heading on either side of it too:
+        theta(s) in [lo - (U1_hi(s_k) - U1_hi(s)), hi - (U1_lo(s_k) - U1_lo(s))] before s_k and
+        [lo + U1_lo(s) - U1_lo(s_k), hi + U1_hi(s) - U1_hi(s_k)] after. A heading corridor pinned
+        in the middle as well as at its ends: the paths that turn early and those that turn late
+        fall in different bins, whose convex polygons no longer span the curved wall of the notch
+        between them.
 
         ``coupled_speed``: the speed along the corridor is a profile with bounded rates
         (``models.speed_lp``, a linear programme per row and direction, solved together) instead
@@ -137,6 +150,31 @@ class _Corridors:
         th_hi = np.minimum(
             _hull(f_hi, self.pad_u1_hi, upper=True), _hull(b_hi, self.pad_u1_lo, upper=True)
         )
+        if waypoint is not None:
+            k, w_lo, w_hi = waypoint
+            nodes = np.arange(self.u1_lo_cum.shape[1])[None, :]
+            lo_at, hi_at = self.u1_lo_cum[:, k : k + 1], self.u1_hi_cum[:, k : k + 1]
+            before = nodes <= k
+            p_lo = np.where(
+                before,
+                w_lo[:, None] - (hi_at - self.u1_hi_cum),
+                w_lo[:, None] + self.u1_lo_cum - lo_at,
+            )
+            p_hi = np.where(
+                before,
+                w_hi[:, None] - (lo_at - self.u1_lo_cum),
+                w_hi[:, None] + self.u1_hi_cum - hi_at,
+            )
+            empty |= np.any(
+                (p_lo > np.minimum(f_hi, b_hi) + 1e-9) | (np.maximum(f_lo, b_lo) > p_hi + 1e-9),
+                axis=1,
+            )
+            sub_before = nodes[:, :-1] < k  # sub-interval i spans nodes i and i + 1
+            # Before the waypoint p_lo follows U1_hi and p_hi U1_lo; after it the other way round.
+            pad_lo = np.where(sub_before, self.pad_u1_hi, self.pad_u1_lo)
+            pad_hi = np.where(sub_before, self.pad_u1_lo, self.pad_u1_hi)
+            th_lo = np.maximum(th_lo, _hull(p_lo, pad_lo, upper=False))
+            th_hi = np.minimum(th_hi, _hull(p_hi, pad_hi, upper=True))
 
         v_lo_f = _stop_rule_paths(np.maximum(self.v_start - eps_v, 0.0), self.step_lo)
         v_hi_f = _stop_rule_paths(self.v_start + eps_v, self.step_hi)
@@ -305,6 +343,7 @@ def partition_tubes(
     initial_set: InitialSet = INITIAL_SET,
     partitioned_from_s: float = 0.0,
     directions: np.ndarray = DIRECTIONS,
+    waypoint_bins: int = 1,
 ) -> list[shapely.Geometry]:
     """Regions that contain every position reached during [0, t] for each t of ``t_ends``: the
     union over instants ``instant_s`` apart of their bin polygons (:func:`partition_supports`),
@@ -327,16 +366,17 @@ def partition_tubes(
         initial_set=initial_set,
         coupled_speed=coupled_speed,
         directions=directions,
+        waypoint_bins=waypoint_bins,
     )
     convex = (
         outer_bound(v_start, bounds, initial_set=initial_set) if not partitioned.all() else None
     )
     grow = speed_max * instant_s / 2
     turn = max_turn_rate(bounds) * instant_s / 2
-    headings = final_heading_bins(
-        bounds, instants[partitioned], heading_bins, initial_set=initial_set
-    )
-    headings = np.repeat(headings, speed_bins, axis=1)
+    headings = bin_headings(
+        bounds, instants[partitioned], heading_bins, waypoint_bins, speed_bins,
+        initial_set=initial_set,
+    )  # fmt: skip
     parts = [grown_to_hold(shapely.Point(0.0, 0.0), initial_set.radius_m + grow)]
     #: Per instant, its region for a tube that ends there: nothing after the instant.
     ends = [parts[0]]
@@ -402,6 +442,21 @@ def final_heading_bins(
     return np.stack([at[:, :-1], at[:, 1:]], axis=-1)
 
 
+def bin_headings(
+    bounds: np.ndarray,
+    times: np.ndarray,
+    heading_bins: int,
+    waypoint_bins: int = 1,
+    speed_bins: int = 1,
+    horizon: float = HORIZON_S,
+    initial_set: InitialSet = INITIAL_SET,
+) -> np.ndarray:
+    """The final heading interval of every bin of :func:`partition_supports`, in its order:
+    [J, heading_bins x waypoint_bins x speed_bins, 2]."""
+    final = final_heading_bins(bounds, times, heading_bins, horizon, initial_set)
+    return np.repeat(final, waypoint_bins * speed_bins, axis=1)
+
+
 def max_turn_rate(bounds: np.ndarray) -> float:
     """The largest |u1| the bounds allow at any time (the interpolation stays between its ends)."""
     named = dict(zip(BOUND_COLUMNS, np.asarray(bounds, dtype=float), strict=True))
@@ -451,27 +506,38 @@ def partition_supports(
     initial_set: InitialSet = INITIAL_SET,
     coupled_speed: bool = False,
     directions: np.ndarray = DIRECTIONS,
+    waypoint_bins: int = 1,
+    waypoint_at: float = WAYPOINT_AT,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Outer polygons of the positions reachable at exactly each of ``times`` [J], one per final
-    heading x final speed bin: supports [J, B, M] in ``directions`` (B = heading_bins x
-    speed_bins) and [J, B] True for bins no trajectory reaches.
+    heading x waypoint heading x final speed bin: supports [J, B, M] in ``directions`` (B =
+    heading_bins x waypoint_bins x speed_bins, in that order of nesting) and [J, B] True for bins
+    no trajectory reaches.
 
     The bins split the forward intervals of the final (unwrapped) heading and speed, which every
     trajectory's final values lie in, so the union of a time's polygons contains every position
     reachable then; unlike one convex polygon, it has the notch behind a car that can turn round.
+    ``waypoint_bins`` > 1 splits each again by the heading at the sub-interval node nearest
+    ``waypoint_at`` x t (its forward interval, likewise covered; ``_Corridors.supports``).
     ``coupled_speed``: see ``_Corridors.supports`` (a linear programme per bin and direction).
     """
     times = np.asarray(times, dtype=float)
-    n_bins = heading_bins * speed_bins
+    n_bins = heading_bins * waypoint_bins * speed_bins
     x = np.zeros((len(times) * n_bins, len(COL)))
     x[:, COL["t"]] = np.repeat(times, n_bins)
     x[:, COL["v_start"]] = v_start
     x[:, 6:] = np.asarray(bounds, dtype=float)
     corridors = _Corridors(x, steps, horizon)
     m = initial_set
-    theta = np.repeat(
-        final_heading_bins(bounds, times, heading_bins, horizon, initial_set), speed_bins, axis=1
+    theta = bin_headings(
+        bounds, times, heading_bins, waypoint_bins, speed_bins, horizon, initial_set
     ).reshape(-1, 2)
+    waypoint = None
+    if waypoint_bins > 1:
+        node = min(max(round(steps * waypoint_at), 1), steps - 1)
+        at = final_heading_bins(bounds, times * node / steps, waypoint_bins, horizon, initial_set)
+        at = np.tile(np.repeat(at, speed_bins, axis=1), (1, heading_bins, 1)).reshape(-1, 2)
+        waypoint = (node, at[:, 0], at[:, 1])
     sp_lo = _stop_rule_paths(
         np.maximum(corridors.v_start - m.speed_margin_mps, 0.0), corridors.step_lo
     )[:, -1]
@@ -486,6 +552,7 @@ def partition_supports(
         initial_set,
         coupled_speed=coupled_speed,
         directions=directions,
+        waypoint=waypoint,
     )
     return (
         support.reshape(len(times), n_bins, len(directions)),

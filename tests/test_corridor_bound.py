@@ -129,6 +129,46 @@ def test_speed_coupled_polygons_hold_every_simulated_position(seed: int) -> None
             assert inside.any(axis=1).all(), (v_start, bounds, times[j])
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_waypoint_bins_hold_every_simulated_position_and_cut_the_notch_walls(seed: int) -> None:
+    """Bins split again by the heading at a waypoint early in [0, t] (``waypoint_bins``): the union
+    of a time's polygons still contains the position of every trajectory at that time (wide,
+    shrinking, fast and random settings; switching and extremal schedules, edge starts), and at
+    3 s it is smaller than without the split where steering bounds shrink from wide."""
+    from models.corridor_bound import DIRECTIONS, bins_union, partition_supports
+
+    rng = np.random.default_rng(seed)
+    named = {s.name: s for s in SETTINGS}
+    names = (("shrinking_steering_only", "urban_wide"), ("fast_wide_limits", "left_turn"))[seed]
+    settings = [(named[name].v_start, named[name].bounds()) for name in names]
+    settings += [(float(p[COL["v_start"]]), p[6:]) for p in sample_parameters(2, rng)]
+    schedules = (sample_reference_schedules, sample_control_schedules)[seed]
+    normals = np.stack([np.cos(DIRECTIONS), np.sin(DIRECTIONS)])
+    for v_start, bounds in settings:
+        _, trace = simulate(v_start, bounds, 2000, rng, schedules)
+        picked = trace[34::40]
+        times = np.array([float(tau[0]) for tau, _ in picked])
+        support, empty = partition_supports(
+            v_start, bounds, times, 8, 1, steps=30, coupled_speed=True, waypoint_bins=6
+        )
+        for j, (_, state) in enumerate(picked):
+            reach = np.stack([state[0], state[1]], axis=1) @ normals  # [n, M]
+            inside = np.all(reach[:, None, :] <= support[j][None] + 1e-9, axis=2) & ~empty[j]
+            assert inside.any(axis=1).all(), (v_start, bounds, times[j])
+    shrinking = named["shrinking_steering_only"]
+    areas = [
+        bins_union(
+            *(a[0] for a in partition_supports(
+                shrinking.v_start, shrinking.bounds(), np.array([3.0]), 8, 1, steps=30,
+                coupled_speed=True, waypoint_bins=w,
+            )),
+            DIRECTIONS,
+        ).area
+        for w in (1, 6)
+    ]  # fmt: skip
+    assert areas[1] < areas[0] - 20.0  # m²
+
+
 def test_partition_tubes_hold_every_simulated_position_up_to_their_time() -> None:
     """models.corridor_bound.partition_tubes (the evaluation's proven outer tube): every position
     recorded every 0.02 s, between the 0.1 s instants too, lies in the tube of each t_end after
@@ -147,6 +187,8 @@ def test_partition_tubes_hold_every_simulated_position_up_to_their_time() -> Non
         speed_max = float(outer_bound(v_start, bounds).sweep_speed_max.max())
         variants = (
             partition_tubes(v_start, bounds, t_ends, speed_max),
+            # heading waypoint bins
+            partition_tubes(v_start, bounds, t_ends, speed_max, 8, steps=20, waypoint_bins=4),
             # the cheap variant: fewer bins and sub-intervals, convex polygons up to 1.5 s
             partition_tubes(
                 v_start, bounds, t_ends, speed_max, 8, steps=20, partitioned_from_s=1.5

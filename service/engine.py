@@ -40,8 +40,8 @@ from shapely.geometry.polygon import orient
 from models.contract import BOUND_COLUMNS, COL, N_INPUTS
 from models.corridor_bound import DIRECTIONS as NOTCH_DIRECTIONS
 from models.corridor_bound import (
+    bin_headings,
     bins_union,
-    final_heading_bins,
     grown_to_hold,
     max_turn_rate,
     partition_supports,
@@ -84,6 +84,7 @@ SWEEPS_PER_WINDOW = 4
 #: their 21 rows over 1.5 m).
 NOTCH_HEADING = math.pi / 2
 NOTCH_BINS = 32
+NOTCH_WAYPOINT_BINS = 1
 NOTCH_STEPS = 90
 
 
@@ -1036,8 +1037,11 @@ class FRTEngine:
             1,
             steps=NOTCH_STEPS,
             coupled_speed=True,
+            waypoint_bins=NOTCH_WAYPOINT_BINS,
         )
-        headings = final_heading_bins(bounds, ob.times[rows][cut], NOTCH_BINS, self.horizon)
+        headings = bin_headings(
+            bounds, ob.times[rows][cut], NOTCH_BINS, NOTCH_WAYPOINT_BINS, horizon=self.horizon
+        )
         # The fastest speed of the sweeps within half an instant of each instant.
         k = self.outer_steps_per_slice
         speed = ob.sweep_speed_max

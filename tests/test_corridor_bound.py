@@ -72,32 +72,49 @@ def test_training_states_carry_their_bound() -> None:
     np.testing.assert_array_equal(value_lower_bound(x), bound)
 
 
+def _settings(names: tuple[str, ...], n_random: int, rng: np.random.Generator) -> list:
+    """(v_start, bounds) of the named evaluation settings, then of ``n_random`` random ones."""
+    named = {s.name: s for s in SETTINGS}
+    settings = [(named[name].v_start, named[name].bounds()) for name in names]
+    return settings + [(float(p[COL["v_start"]]), p[6:]) for p in sample_parameters(n_random, rng)]
+
+
+def _assert_bins_hold_simulated_positions(
+    settings: list, schedules, rng: np.random.Generator, every: slice, partition
+) -> None:
+    """At the recorded times ``every`` picks, the union of the bin polygons ``partition(v_start,
+    bounds, times)`` gives (supports [J, B, M] in DIRECTIONS, empty [J, B]) contains the position
+    of every one of 2000 simulated trajectories."""
+    from models.corridor_bound import DIRECTIONS
+
+    normals = np.stack([np.cos(DIRECTIONS), np.sin(DIRECTIONS)])
+    for v_start, bounds in settings:
+        _, trace = simulate(v_start, bounds, 2000, rng, schedules)
+        picked = trace[every]
+        times = np.array([float(tau[0]) for tau, _ in picked])
+        support, empty = partition(v_start, bounds, times)
+        for j, (_, state) in enumerate(picked):
+            reach = np.stack([state[0], state[1]], axis=1) @ normals  # [n, M]
+            inside = np.all(reach[:, None, :] <= support[j][None] + 1e-9, axis=2) & ~empty[j]
+            assert inside.any(axis=1).all(), (v_start, bounds, times[j])
+
+
 @pytest.mark.parametrize("seed", [0, 1])
 def test_partition_polygons_hold_every_simulated_position(seed: int) -> None:
     """The union of a time's heading x speed bin polygons (models.corridor_bound.partition_supports)
     contains the position of every trajectory from the initial set at that time: wide, shrinking
     and random settings, switching and extremal schedules, edge starts."""
-    from models.corridor_bound import DIRECTIONS, partition_supports
+    from models.corridor_bound import partition_supports
 
     rng = np.random.default_rng(seed)
-    named = {s.name: s for s in SETTINGS}
-    settings = [
-        (named[name].v_start, named[name].bounds())
-        for name in ("urban_wide", "shrinking_wide_to_narrow", "growing_narrow_to_wide")
-    ]
-    settings += [(float(p[COL["v_start"]]), p[6:]) for p in sample_parameters(3, rng)]
-    schedules = (sample_control_schedules, sample_reference_schedules)[seed]
-    normals = np.stack([np.cos(DIRECTIONS), np.sin(DIRECTIONS)])
-    n = 2000
-    for v_start, bounds in settings:
-        _, trace = simulate(v_start, bounds, n, rng, schedules)
-        picked = trace[29::40]
-        times = np.array([float(tau[0]) for tau, _ in picked])
-        support, empty = partition_supports(v_start, bounds, times, 12, 4)
-        for j, (_, state) in enumerate(picked):
-            reach = np.stack([state[0], state[1]], axis=1) @ normals  # [n, M]
-            inside = np.all(reach[:, None, :] <= support[j][None] + 1e-9, axis=2) & ~empty[j]
-            assert inside.any(axis=1).all(), (v_start, bounds, times[j])
+    names = ("urban_wide", "shrinking_wide_to_narrow", "growing_narrow_to_wide")
+    _assert_bins_hold_simulated_positions(
+        _settings(names, 3, rng),
+        (sample_control_schedules, sample_reference_schedules)[seed],
+        rng,
+        slice(29, None, 40),
+        lambda v_start, bounds, times: partition_supports(v_start, bounds, times, 12, 4),
+    )
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -106,27 +123,22 @@ def test_speed_coupled_polygons_hold_every_simulated_position(seed: int) -> None
     direction), the union of a time's bin polygons still contains the position of every trajectory
     at that time: wide, shrinking, forced braking (u2 < 0 throughout), forced acceleration late
     (u2 > 0 at the end) and random settings; switching and extremal schedules, edge starts."""
-    from models.corridor_bound import DIRECTIONS, partition_supports
+    from models.corridor_bound import partition_supports
 
     rng = np.random.default_rng(seed)
-    named = {s.name: s for s in SETTINGS}
     names = (
         ("urban_wide", "braking_hard", "stop_sign_runner"),
         ("shrinking_wide_to_narrow", "braking_to_stop", "u_turn_like"),
     )[seed]
-    settings = [(named[name].v_start, named[name].bounds()) for name in names]
-    settings += [(float(p[COL["v_start"]]), p[6:]) for p in sample_parameters(2, rng)]
-    schedules = (sample_control_schedules, sample_reference_schedules)[seed]
-    normals = np.stack([np.cos(DIRECTIONS), np.sin(DIRECTIONS)])
-    for v_start, bounds in settings:
-        _, trace = simulate(v_start, bounds, 2000, rng, schedules)
-        picked = trace[44::50]
-        times = np.array([float(tau[0]) for tau, _ in picked])
-        support, empty = partition_supports(v_start, bounds, times, 8, 2, coupled_speed=True)
-        for j, (_, state) in enumerate(picked):
-            reach = np.stack([state[0], state[1]], axis=1) @ normals  # [n, M]
-            inside = np.all(reach[:, None, :] <= support[j][None] + 1e-9, axis=2) & ~empty[j]
-            assert inside.any(axis=1).all(), (v_start, bounds, times[j])
+    _assert_bins_hold_simulated_positions(
+        _settings(names, 2, rng),
+        (sample_control_schedules, sample_reference_schedules)[seed],
+        rng,
+        slice(44, None, 50),
+        lambda v_start, bounds, times: partition_supports(
+            v_start, bounds, times, 8, 2, coupled_speed=True
+        ),
+    )
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -138,23 +150,17 @@ def test_waypoint_bins_hold_every_simulated_position_and_cut_the_notch_walls(see
     from models.corridor_bound import DIRECTIONS, bins_union, partition_supports
 
     rng = np.random.default_rng(seed)
-    named = {s.name: s for s in SETTINGS}
     names = (("shrinking_steering_only", "urban_wide"), ("fast_wide_limits", "left_turn"))[seed]
-    settings = [(named[name].v_start, named[name].bounds()) for name in names]
-    settings += [(float(p[COL["v_start"]]), p[6:]) for p in sample_parameters(2, rng)]
-    schedules = (sample_reference_schedules, sample_control_schedules)[seed]
-    normals = np.stack([np.cos(DIRECTIONS), np.sin(DIRECTIONS)])
-    for v_start, bounds in settings:
-        _, trace = simulate(v_start, bounds, 2000, rng, schedules)
-        picked = trace[34::40]
-        times = np.array([float(tau[0]) for tau, _ in picked])
-        support, empty = partition_supports(
+    _assert_bins_hold_simulated_positions(
+        _settings(names, 2, rng),
+        (sample_reference_schedules, sample_control_schedules)[seed],
+        rng,
+        slice(34, None, 40),
+        lambda v_start, bounds, times: partition_supports(
             v_start, bounds, times, 8, 1, steps=30, coupled_speed=True, waypoint_bins=6
-        )
-        for j, (_, state) in enumerate(picked):
-            reach = np.stack([state[0], state[1]], axis=1) @ normals  # [n, M]
-            inside = np.all(reach[:, None, :] <= support[j][None] + 1e-9, axis=2) & ~empty[j]
-            assert inside.any(axis=1).all(), (v_start, bounds, times[j])
+        ),
+    )
+    named = {s.name: s for s in SETTINGS}
     shrinking = named["shrinking_steering_only"]
     areas = [
         bins_union(

@@ -223,7 +223,8 @@ async def get_agent(services: Services, agent_id: str, wait_frt_s: float = 0.0) 
     belief = Belief.from_dict(state.belief)
     probs, betas = belief_out(belief)
     config = effective_config(services.settings, state.config)
-    exact = services.scheduler.lookup(services.job_for(state).key) if services.engine else None
+    key = services.job_for(state).key
+    exact = services.scheduler.lookup(key) if services.engine else None
     ready = exact is not None
     return AgentResponse(
         agent_id=agent_id,
@@ -235,7 +236,7 @@ async def get_agent(services: Services, agent_id: str, wait_frt_s: float = 0.0) 
         control_bounds=ControlBoundsOut.from_list(state.control_bounds),
         frt_version=state.frt_version,
         frt_ready=ready,
-        frt_refinement=services.refinement_state(exact),
+        frt_refinement=services.refinement_state(exact, key),
         config=EffectiveConfig(beta_high=float(belief.betas[-1]), **config),
     )
 

@@ -146,6 +146,7 @@ class FRTScheduler:
         self._metrics = metrics
         self._executor: Executor | None = None
         self._cache = LRUCache(cache_size)
+        self._cache_size = cache_size
         self._pending: dict[FRTKey, _Job] = {}  # queued or running
         self._queue: OrderedDict[Hashable, FRTKey] = OrderedDict()  # one per agent, FIFO
         self._running: set[FRTKey] = set()
@@ -159,6 +160,8 @@ class FRTScheduler:
         self.refinement: Callable[[Callable[[], Any], Any], Callable[[], Any] | None] | None = None
         self._refine_queue: OrderedDict[Hashable, tuple[FRTKey, Callable[[], Any]]] = OrderedDict()
         self._refining: set[FRTKey] = set()
+        #: Keys whose refinement raised, newest last (as many as the cache holds sets).
+        self._refine_failed: OrderedDict[FRTKey, None] = OrderedDict()
         self._lock = threading.RLock()  # done-callbacks may run inline in submit()
 
     @property
@@ -356,6 +359,12 @@ class FRTScheduler:
                 handle.set_exception(exc)
             handle.add_done_callback(functools.partial(self._refined, key))
 
+    def refinement_failed(self, key: FRTKey) -> bool:
+        """Whether the refinement of ``key``'s set raised (it then stays the set first made
+        ready)."""
+        with self._lock:
+            return key in self._refine_failed
+
     def _queue_refinement(self, key: FRTKey, compute: Callable[[], Any], result: Any) -> None:
         refine = self.refinement
         follow_up = refine(compute, result) if refine is not None else None
@@ -376,6 +385,10 @@ class FRTScheduler:
             error = handle.exception() if not handle.cancelled() else CancelledError()
             if error is None and not discard and self._cache.replace(key, handle.result()[0]):
                 self._metrics.frt_compute_seconds.labels("refined").observe(handle.result()[1])
+            if error is not None and not discard and not isinstance(error, CancelledError):
+                self._refine_failed[key] = None
+                while len(self._refine_failed) > self._cache_size:
+                    self._refine_failed.popitem(last=False)
         if error is not None and not isinstance(error, CancelledError | BrokenExecutor):
             log.error(
                 "FRT refinement failed",

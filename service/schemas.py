@@ -202,11 +202,12 @@ class AgentResponse(Response):
     control_bounds: ControlBoundsOut
     frt_version: int
     frt_ready: bool = Field(description="whether the exact FRT of this version is computed")
-    frt_refinement: Literal["not_needed", "pending", "done"] | None = Field(
+    frt_refinement: Literal["not_needed", "pending", "done", "failed"] | None = Field(
         None,
         description="once the exact FRT is ready: whether it is being tightened in the background "
         "(an agent that may turn round: its set cut to the speed-coupled partition, "
-        "FRT_FRT_NOTCH_CUT), and whether that is done; null before",
+        "FRT_FRT_NOTCH_CUT), and whether that is done, or failed (the served set then stays the "
+        "uncut one, which contains the cut one); null before",
     )
     config: EffectiveConfig
 

@@ -232,13 +232,17 @@ class Services:
         """``engine.exact`` for ``job``: on this engine in a thread, on its own in a worker process."""
         return ExactTask(job.pose, job.v_start, job.bounds, self.require_engine())
 
-    def refinement_state(self, exact: FRTSet | None) -> str | None:
-        """Of a ready exact set: "done" if it is the notch-cut refinement, "pending" if one is due
-        (``FRT_FRT_NOTCH_CUT`` and a set that may turn round), else "not_needed"; None if no set."""
+    def refinement_state(self, exact: FRTSet | None, key: FRTKey) -> str | None:
+        """Of the ready exact set of ``key``: "done" if it is the notch-cut refinement, "failed"
+        if that raised (the set stays the uncut one, which contains the cut one), "pending" if one
+        is due (``FRT_FRT_NOTCH_CUT`` and a set that may turn round), else "not_needed"; None if
+        no set."""
         if exact is None:
             return None
         if getattr(exact, "notch", None) is not None:
             return "done"
+        if self.scheduler.refinement_failed(key):
+            return "failed"
         due = self.scheduler.refinement is not None and getattr(exact, "notch_possible", False)
         return "pending" if due else "not_needed"
 

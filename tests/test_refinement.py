@@ -153,6 +153,10 @@ def test_a_failed_refinement_keeps_the_ready_set(scheduler: FRTScheduler) -> Non
     asyncio.run(scheduler.wait(k, Refinable("exact", broken), 5.0))
     b = asyncio.run(scheduler.wait(key("b", 1), Refinable("exact b", None), 5.0))
     assert b == "exact b" and scheduler.lookup(k) == "exact"
+    # Said so (GET /v1/agents/{id}: frt_refinement "failed"), and only of that key.
+    assert until(lambda: scheduler.refinement_failed(k))
+    assert not scheduler.refinement_failed(key("b", 1))
+    assert not scheduler.refinement_failed(key("a", 2))
 
 
 @pytest.fixture(scope="module")

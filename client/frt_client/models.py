@@ -82,7 +82,8 @@ class Agent(Response):
     frt_version: int
     frt_ready: bool = False
     #: Once the exact FRT is ready: "pending" while the service tightens it in the background (an
-    #: agent that may turn round), "done" after, "not_needed" otherwise.
+    #: agent that may turn round), "done" after, "failed" if that raised (the uncut set, which
+    #: contains the cut one, stays), "not_needed" otherwise.
     frt_refinement: str | None = None
     config: EffectiveConfig | None = None
 

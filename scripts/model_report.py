@@ -115,10 +115,17 @@ def _partition(acc: dict) -> list[str]:
     ref = acc.get("partition_reference")
     if not ref:
         return []
+    waypoints = ref.get("waypoint_bins", 1)
+    split = (
+        f", each split into {waypoints} by the heading at a fifth of the time (waypoint bins)"
+        if waypoints > 1
+        else ""
+    )
     return [
-        f"The partition reference: {ref['heading_bins']} final-heading bins, speed programmes on "
-        f"{ref['steps']} sub-intervals, instants {ref['instant_s']} s apart, each bin swept along "
-        "its headings to the instants' midpoints.",
+        f"The partition reference: {ref['heading_bins']} final-heading bins{split}, speed "
+        f"programmes on {ref['steps']} sub-intervals, instants {ref['instant_s']} s apart, each "
+        "bin swept along its headings to the instants' midpoints (the last instant of a tube "
+        "backwards in time only).",
         "",
     ]
 

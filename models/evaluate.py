@@ -50,7 +50,7 @@ from scipy.spatial import cKDTree
 from tqdm import tqdm
 
 from models.contract import COL, HORIZON_S, N_INPUTS
-from models.corridor_bound import partition_tubes
+from models.corridor_bound import WAYPOINT_AT, partition_tubes
 from models.eval_settings import SETTINGS, Setting
 from models.export_card import write_card
 from models.rollout import (
@@ -533,7 +533,7 @@ def main() -> None:
         "dt_s": DT,
         "seed": args.seed,
         "notch_cut": {"on": args.notch_cut, "bins": NOTCH_BINS, "steps": NOTCH_STEPS},
-        "partition_reference": PARTITION_REFERENCE,
+        "partition_reference": {**PARTITION_REFERENCE, "waypoint_at": WAYPOINT_AT},
         "summary": summary,
         "rows": rows,
     }

@@ -117,7 +117,8 @@ def _partition(acc: dict) -> list[str]:
         return []
     waypoints = ref.get("waypoint_bins", 1)
     split = (
-        f", each split into {waypoints} by the heading at a fifth of the time (waypoint bins)"
+        f", each split into {waypoints} by the heading at {ref.get('waypoint_at', '?')} of the "
+        "time (waypoint bins)"
         if waypoints > 1
         else ""
     )

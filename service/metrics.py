@@ -45,6 +45,14 @@ class Metrics:
             ["result"],
             registry=r,
         )
+        self.refinements = Counter(
+            "frt_refinements",
+            "Background refinements of exact sets (the notch cut), by outcome: landed (it replaced "
+            "its set), dropped (its version superseded or its agent forgotten before it ran), "
+            "wasted (it ran, but its version had gone by then) or failed (it raised)",
+            ["outcome"],
+            registry=r,
+        )
         self.frt_failures = Counter(
             "frt_exact_failures", "Exact-FRT computations that raised", registry=r
         )

@@ -305,7 +305,8 @@ class FRTScheduler:
             self._cache.forget(agent_id)
             queued = self._queue.pop(agent_id, None)
             job = self._pending.pop(queued) if queued is not None else None
-            self._refine_queue.pop(agent_id, None)
+            if self._refine_queue.pop(agent_id, None) is not None:
+                self._metrics.refinements.labels("dropped").inc()
             self._discard.update(
                 k for k in self._running | self._refining if k.agent_id == agent_id
             )
@@ -350,6 +351,7 @@ class FRTScheduler:
                 return
             _, (key, compute) = self._refine_queue.popitem(last=False)
             if key not in self._cache:
+                self._metrics.refinements.labels("dropped").inc()
                 continue
             self._refining.add(key)
             try:
@@ -372,7 +374,8 @@ class FRTScheduler:
             return
         with self._lock:
             slot: Hashable = key.agent_id or key
-            self._refine_queue.pop(slot, None)  # a newer version's refinement goes to the back
+            if self._refine_queue.pop(slot, None) is not None:  # the newer one goes to the back
+                self._metrics.refinements.labels("dropped").inc()
             self._refine_queue[slot] = (key, follow_up)
 
     def _refined(self, key: FRTKey, handle: Future[Any]) -> None:
@@ -383,9 +386,13 @@ class FRTScheduler:
             discard = key in self._discard
             self._discard.discard(key)
             error = handle.exception() if not handle.cancelled() else CancelledError()
-            if error is None and not discard and self._cache.replace(key, handle.result()[0]):
-                self._metrics.frt_compute_seconds.labels("refined").observe(handle.result()[1])
-            if error is not None and not discard and not isinstance(error, CancelledError):
+            if error is None:
+                landed = not discard and self._cache.replace(key, handle.result()[0])
+                self._metrics.refinements.labels("landed" if landed else "wasted").inc()
+                if landed:
+                    self._metrics.frt_compute_seconds.labels("refined").observe(handle.result()[1])
+            elif not discard and not isinstance(error, CancelledError):
+                self._metrics.refinements.labels("failed").inc()
                 self._refine_failed[key] = None
                 while len(self._refine_failed) > self._cache_size:
                     self._refine_failed.popitem(last=False)

@@ -63,6 +63,15 @@ def until(condition: Callable[[], bool], timeout_s: float = 5.0) -> bool:
     return condition()
 
 
+def outcomes(scheduler: FRTScheduler) -> dict[str, float]:
+    """The scheduler's ``frt_refinements_total`` by outcome (0 where none)."""
+    registry = scheduler._metrics.registry
+    return {
+        outcome: registry.get_sample_value("frt_refinements_total", {"outcome": outcome}) or 0.0
+        for outcome in ("landed", "dropped", "wasted", "failed")
+    }
+
+
 def test_a_refined_set_replaces_the_ready_one(scheduler: FRTScheduler) -> None:
     gate = threading.Event()
 
@@ -75,6 +84,7 @@ def test_a_refined_set_replaces_the_ready_one(scheduler: FRTScheduler) -> None:
     assert first == "exact" and scheduler.lookup(k) == "exact"  # ready before the refinement
     gate.set()
     assert until(lambda: scheduler.lookup(k) == "refined")
+    assert outcomes(scheduler) == {"landed": 1, "dropped": 0, "wasted": 0, "failed": 0}
 
 
 def test_refinements_leave_a_worker_to_exact_sets(scheduler: FRTScheduler) -> None:
@@ -118,6 +128,8 @@ def test_a_refinement_of_a_forgotten_agent_is_dropped(scheduler: FRTScheduler) -
     assert done.wait(5)
     time.sleep(0.05)
     assert scheduler.lookup(k) is None
+    assert until(lambda: outcomes(scheduler)["wasted"] == 1)  # it ran for nothing
+    assert outcomes(scheduler)["landed"] == 0
 
 
 def test_a_refinement_of_a_superseded_version_does_not_come_back(
@@ -143,6 +155,8 @@ def test_a_refinement_of_a_superseded_version_does_not_come_back(
     gate.set()
     assert until(lambda: scheduler.lookup(key("a", 3)) == "refined a3")
     assert scheduler.lookup(key("a", 2)) == "exact a2"  # its refinement was replaced by a3's
+    assert until(lambda: outcomes(scheduler)["landed"] == 2)  # z's and a3's
+    assert outcomes(scheduler)["dropped"] == 2  # a1's and a2's, never run
 
 
 def test_a_failed_refinement_keeps_the_ready_set(scheduler: FRTScheduler) -> None:
@@ -155,6 +169,7 @@ def test_a_failed_refinement_keeps_the_ready_set(scheduler: FRTScheduler) -> Non
     assert b == "exact b" and scheduler.lookup(k) == "exact"
     # Said so (GET /v1/agents/{id}: frt_refinement "failed"), and only of that key.
     assert until(lambda: scheduler.refinement_failed(k))
+    assert outcomes(scheduler)["failed"] == 1
     assert not scheduler.refinement_failed(key("b", 1))
     assert not scheduler.refinement_failed(key("a", 2))
 

@@ -48,8 +48,9 @@ class Metrics:
         self.refinements = Counter(
             "frt_refinements",
             "Background refinements of exact sets (the notch cut), by outcome: landed (it replaced "
-            "its set), dropped (its version superseded or its agent forgotten before it ran), "
-            "wasted (it ran, but its version had gone by then) or failed (it raised)",
+            "the agent's current set), stale (it replaced its set, but a later version had come: "
+            "checks no longer ask for it), dropped (its version superseded or its agent forgotten "
+            "before it ran), wasted (it ran, but its set had left the cache) or failed (it raised)",
             ["outcome"],
             registry=r,
         )

@@ -116,6 +116,11 @@ class LRUCache:
             self._items[key] = value
             return True
 
+    def newer_cached(self, key: FRTKey) -> bool:
+        """Whether a later version of ``key``'s agent is cached."""
+        with self._lock:
+            return any(k.version > key.version for k in self._by_agent.get(key.agent_id, ()))
+
     def forget(self, agent_id: str) -> None:
         """Drop every set of ``agent_id``."""
         with self._lock:
@@ -361,6 +366,14 @@ class FRTScheduler:
                 handle.set_exception(exc)
             handle.add_done_callback(functools.partial(self._refined, key))
 
+    def _superseded(self, key: FRTKey) -> bool:
+        """Whether a later version of ``key``'s agent is cached, queued or running (called with the
+        lock held): checks ask for that version's set from then on, not ``key``'s."""
+        if not key.agent_id:
+            return False
+        later = (k for k in (*self._pending, *self._refining) if k.agent_id == key.agent_id)
+        return any(k.version > key.version for k in later) or self._cache.newer_cached(key)
+
     def refinement_failed(self, key: FRTKey) -> bool:
         """Whether the refinement of ``key``'s set raised (it then stays the set first made
         ready)."""
@@ -388,9 +401,11 @@ class FRTScheduler:
             error = handle.exception() if not handle.cancelled() else CancelledError()
             if error is None:
                 landed = not discard and self._cache.replace(key, handle.result()[0])
-                self._metrics.refinements.labels("landed" if landed else "wasted").inc()
+                outcome = "wasted"
                 if landed:
+                    outcome = "stale" if self._superseded(key) else "landed"
                     self._metrics.frt_compute_seconds.labels("refined").observe(handle.result()[1])
+                self._metrics.refinements.labels(outcome).inc()
             elif not discard and not isinstance(error, CancelledError):
                 self._metrics.refinements.labels("failed").inc()
                 self._refine_failed[key] = None

@@ -68,7 +68,7 @@ def outcomes(scheduler: FRTScheduler) -> dict[str, float]:
     registry = scheduler._metrics.registry
     return {
         outcome: registry.get_sample_value("frt_refinements_total", {"outcome": outcome}) or 0.0
-        for outcome in ("landed", "dropped", "wasted", "failed")
+        for outcome in ("landed", "stale", "dropped", "wasted", "failed")
     }
 
 
@@ -84,7 +84,7 @@ def test_a_refined_set_replaces_the_ready_one(scheduler: FRTScheduler) -> None:
     assert first == "exact" and scheduler.lookup(k) == "exact"  # ready before the refinement
     gate.set()
     assert until(lambda: scheduler.lookup(k) == "refined")
-    assert outcomes(scheduler) == {"landed": 1, "dropped": 0, "wasted": 0, "failed": 0}
+    assert outcomes(scheduler) == {"landed": 1, "stale": 0, "dropped": 0, "wasted": 0, "failed": 0}
 
 
 def test_refinements_leave_a_worker_to_exact_sets(scheduler: FRTScheduler) -> None:
@@ -157,6 +157,25 @@ def test_a_refinement_of_a_superseded_version_does_not_come_back(
     assert scheduler.lookup(key("a", 2)) == "exact a2"  # its refinement was replaced by a3's
     assert until(lambda: outcomes(scheduler)["landed"] == 2)  # z's and a3's
     assert outcomes(scheduler)["dropped"] == 2  # a1's and a2's, never run
+
+
+def test_a_refinement_that_finishes_after_a_newer_version_counts_as_stale(
+    scheduler: FRTScheduler,
+) -> None:
+    """Checks ask for the agent's current version's set: a refinement of the version before,
+    finishing once the current one is cached, replaces a set nobody asks for (``stale``)."""
+    gate = threading.Event()
+
+    def tighter() -> str:
+        gate.wait(5)
+        return "refined a1"
+
+    asyncio.run(scheduler.wait(key("a", 1), Refinable("exact a1", tighter), 5.0))
+    asyncio.run(scheduler.wait(key("a", 2), Refinable("exact a2", None), 5.0))
+    gate.set()
+    assert until(lambda: scheduler.lookup(key("a", 1)) == "refined a1")
+    assert until(lambda: outcomes(scheduler)["stale"] == 1)
+    assert outcomes(scheduler)["landed"] == 0
 
 
 def test_a_failed_refinement_keeps_the_ready_set(scheduler: FRTScheduler) -> None:

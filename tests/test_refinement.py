@@ -112,6 +112,34 @@ def test_refinements_leave_a_worker_to_exact_sets(scheduler: FRTScheduler) -> No
     assert scheduler.lookup(key("a", 1)) == "refined a"
 
 
+@pytest.mark.parametrize("oldest_after_s, order", [(60.0, ["z", "b", "a"]), (0.0, ["z", "a", "b"])])
+def test_refinements_start_newest_first_unless_the_oldest_has_waited(
+    scheduler: FRTScheduler, monkeypatch, oldest_after_s: float, order: list[str]
+) -> None:
+    """The version observed last has the most life left to be served, so its refinement goes
+    first; one that has waited REFINE_OLDEST_AFTER_S goes before it."""
+    monkeypatch.setattr("service.scheduler.REFINE_OLDEST_AFTER_S", oldest_after_s)
+    gate = threading.Event()
+    started: list[str] = []
+
+    def tighter(name: str) -> Callable[[], str]:
+        def compute() -> str:
+            started.append(name)
+            if name == "z":
+                gate.wait(5)
+            return f"refined {name}"
+
+        return compute
+
+    asyncio.run(scheduler.wait(key("z", 1), Refinable("exact z", tighter("z")), 5.0))
+    assert until(lambda: started == ["z"])  # holds the refining worker; a's, then b's, queue
+    for name in ("a", "b"):
+        asyncio.run(scheduler.wait(key(name, 1), Refinable(f"exact {name}", tighter(name)), 5.0))
+    gate.set()
+    assert until(lambda: len(started) == 3)
+    assert started == order
+
+
 def test_a_refinement_of_a_forgotten_agent_is_dropped(scheduler: FRTScheduler) -> None:
     gate = threading.Event()
     done = threading.Event()

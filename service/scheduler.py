@@ -381,11 +381,15 @@ class FRTScheduler:
             handle.add_done_callback(functools.partial(self._refined, key))
 
     def _superseded(self, key: FRTKey) -> bool:
-        """Whether a later version of ``key``'s agent is cached, queued or running (called with the
-        lock held): checks ask for that version's set from then on, not ``key``'s."""
+        """Whether a later version of ``key``'s agent is queued, running or cached (called with the
+        lock held): checks ask for that version's set from then on, not ``key``'s. The agent's
+        queued set is in its slot, so only the few running sets are scanned."""
         if not key.agent_id:
             return False
-        later = (k for k in (*self._pending, *self._refining) if k.agent_id == key.agent_id)
+        queued = self._queue.get(key.agent_id)
+        later = (
+            k for k in (queued, *self._running) if k is not None and k.agent_id == key.agent_id
+        )
         return any(k.version > key.version for k in later) or self._cache.newer_cached(key)
 
     def refinement_failed(self, key: FRTKey) -> bool:

@@ -182,17 +182,18 @@ class _Corridors:
         back_hi_nodes = speed_f[1][:, None] - self.brake_after
         empty |= np.any((v_lo_f > back_hi_nodes + 1e-9) | (back_lo_nodes > v_hi_f + 1e-9), axis=1)
         th_hi = np.maximum(th_hi, th_lo)
-        c_hi = cos_max_towards(th_lo, th_hi, directions)
 
         if coupled_speed:
-            from models.speed_lp import coupled_gain
+            from models.speed_lp import corridor_gain
 
             gain = np.full((self.n, len(directions)), -np.inf)
             live = np.flatnonzero(~empty)
             node_lo = np.maximum(v_lo_f, back_lo_nodes)
             node_hi = np.minimum(v_hi_f, back_hi_nodes)
-            gain[live], lp_empty = coupled_gain(
-                c_hi[live],
+            gain[live], lp_empty = corridor_gain(
+                th_lo[live],
+                th_hi[live],
+                directions,
                 self.h[live],
                 node_lo[live] - 1e-9,
                 node_hi[live] + 1e-9,
@@ -210,6 +211,7 @@ class _Corridors:
             _hull(v_hi_f, 0.0, upper=True), _hull(back_hi_nodes, self.pad_u2_lo, upper=True)
         )
         sp_hi = np.maximum(sp_hi, sp_lo)  # an empty sub-interval is caught at the nodes above
+        c_hi = cos_max_towards(th_lo, th_hi, directions)
         rate = np.where(c_hi >= 0, sp_hi[:, :, None] * c_hi, sp_lo[:, :, None] * c_hi)
         support = m.radius_m + c[:, None] + rate.sum(axis=1) * self.h[:, None]  # [N, M]
         return support, empty

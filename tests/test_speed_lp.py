@@ -8,7 +8,8 @@ import pytest
 from scipy.optimize import linprog
 from scipy.sparse import diags, vstack
 
-from models.speed_lp import coupled_gain, max_linear_over_profiles
+from models.outer_bound import cos_max_towards
+from models.speed_lp import corridor_gain, max_linear_over_profiles
 
 
 def highs_optimum(w, lo, hi, rise, fall) -> float:
@@ -79,14 +80,65 @@ def test_the_gain_bounds_the_integral_of_every_simulated_profile() -> None:
 
     nodes = np.linspace(0.0, horizon, steps + 1)
     h = horizon / steps
-    sub = np.linspace(0.0, 1.0, 101)
-    g_max = np.array([np.cos(1.1 * (a + sub * h) - 2.0).max() for a in nodes[:-1]])
+    heading = 1.1 * nodes - 2.0  # g(t) = cos(heading(t) - 0): a corridor of one heading per time
     step_lo, step_hi = np.full(steps, a_lo * h), np.full(steps, a_hi * h)
     v_hi = v0 + a_hi * nodes
     v_lo = np.maximum(v0 + a_lo * nodes, 0.0)
-    bound, empty = coupled_gain(
-        g_max[None, :, None], np.array([h]), v_lo[None], v_hi[None], step_lo[None], step_hi[None]
+    bound, empty = corridor_gain(
+        heading[None, :-1],
+        heading[None, 1:],
+        np.zeros(1),
+        np.array([h]),
+        v_lo[None],
+        v_hi[None],
+        step_lo[None],
+        step_hi[None],
     )
     assert not empty[0]
     assert gained.max() <= bound[0, 0]
     assert bound[0, 0] <= gained.max() + 0.05 * abs(gained.max()) + 0.5
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_corridor_gain_is_the_programme_of_its_corridors_cosines(seed: int) -> None:
+    """Random heading corridors (narrow ones facing a direction or away from it, so that the
+    objective keeps one sign, and wide ones that turn), node bounds, rates: each (row, direction)
+    optimum is HiGHS's optimum of the programme whose weights the corridor's largest cosines give
+    (models.outer_bound.cos_max_towards), plus the chord excess; rows without a profile are
+    empty."""
+    rng = np.random.default_rng(100 + seed)
+    rows, steps = 24, 20
+    directions = np.arange(8) * (2 * np.pi / 8)
+    centre = rng.uniform(-4, 4, (rows, 1)) + np.cumsum(
+        rng.normal(0, 0.3, (rows, steps)) * (rng.uniform(size=(rows, 1)) < 0.7), axis=1
+    )
+    width = rng.uniform(0.0, 1.5, (rows, steps)) * rng.uniform(0, 1, (rows, 1))
+    th_lo, th_hi = centre - width / 2, centre + width / 2
+    h = rng.uniform(0.02, 0.1, rows)
+    mid = rng.uniform(0, 20, (rows, 1)) + np.cumsum(rng.normal(0, 0.5, (rows, steps + 1)), 1)
+    spread = rng.uniform(0.0, 6.0, (rows, steps + 1))
+    node_lo = np.maximum(mid - spread, 0.0)
+    node_hi = np.maximum(mid + spread, node_lo + rng.uniform(0, 0.2, (rows, steps + 1)))
+    step_lo = -rng.uniform(0, 1.0, (rows, steps))
+    step_hi = rng.uniform(0, 1.0, (rows, steps))
+    got, empty = corridor_gain(th_lo, th_hi, directions, h, node_lo, node_hi, step_lo, step_hi)
+
+    g = cos_max_towards(th_lo, th_hi, directions)  # [rows, steps, M]
+    rise, fall = step_hi, -step_lo
+    single_sign = 0
+    for i in range(rows):
+        for m in range(len(directions)):
+            w = np.zeros(steps + 1)
+            w[:-1] += 0.5 * h[i] * g[i, :, m]
+            w[1:] += 0.5 * h[i] * g[i, :, m]
+            single_sign += bool(np.all(w >= 0) or np.all(w <= 0))
+            want = highs_optimum(w, node_lo[i], node_hi[i], rise[i], fall[i])
+            if np.isinf(want):
+                assert empty[i] and got[i, m] == -np.inf
+                continue
+            want += np.sum(np.abs(g[i, :, m]) * (rise[i] + fall[i]) * h[i] / 8.0)
+            assert not empty[i]
+            assert want - 1e-9 <= got[i, m] <= want + 1e-5 * (1 + abs(want))
+    assert 0 < single_sign < rows * len(directions)  # both of the kernel's paths are taken
+    if seed == 0:
+        assert 0 < empty.sum() < rows

@@ -23,9 +23,10 @@ and the area of K(t) outside the partition bound and how far its cells reach bey
 (95th percentile, as against the rollouts).
 
 K(t) is the set the service serves once refined: by default (``FRT_FRT_NOTCH_CUT``, ``--notch-cut``)
-cut to a cheaper speed-coupled partition where the car may turn round (``service.engine.NotchCut``).
-The uncut set, which the service answers from until that refinement lands, is reported beside it
-(``iou_uncut``, ``beyond_uncut_p95_m``).
+cut to a cheaper speed-coupled partition where the car may turn round (``service.engine.NotchCut``),
+by the last of its stages (``NOTCH_STAGES``). The sets the service answers from before that lands
+are reported beside it: the first stage's (``iou_first_stage``, ``beyond_first_stage_p95_m``) and
+the uncut set (``iou_uncut``, ``beyond_uncut_p95_m``).
 
 Calibration (--calibrate): scenario optimisation over random parameter settings (Lin & Bansal's
 verification of DeepReach): delta is the largest value of V at sampled reachable states, so with N
@@ -36,6 +37,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import dataclasses
 import json
 import math
 import time
@@ -60,7 +62,7 @@ from models.rollout import (
     sample_reference_schedules,
 )
 from models.sampling import sample_parameters
-from service.engine import NOTCH_BINS, NOTCH_STEPS, FRTEngine, Pose
+from service.engine import NOTCH_STAGES, FRTEngine, Pose
 from service.model_runtime import ValueModel
 from service.settings import Settings
 
@@ -230,9 +232,15 @@ def evaluate_setting(
     roll = simulate(setting.v_start, bounds, n_rollouts, rng)
     frt = engine.exact(Pose(0.0, 0.0, 0.0), setting.v_start, bounds)
     frt_without = without_network(engine).exact(Pose(0.0, 0.0, 0.0), setting.v_start, bounds)
-    # With the notch cut the service answers from the uncut set until its cut refinement lands.
+    # With the notch cut the service answers from the uncut set until its first stage lands, then
+    # from that until the last lands.
     frt_uncut = (
         engine.exact(Pose(0.0, 0.0, 0.0), setting.v_start, bounds, notch_cut=False)
+        if engine.notch_cut
+        else frt
+    )
+    frt_first = (
+        engine.exact(Pose(0.0, 0.0, 0.0), setting.v_start, bounds, notch_cut=True, notch_stage=1)
         if engine.notch_cut
         else frt
     )
@@ -286,6 +294,9 @@ def evaluate_setting(
         uncut = compare_cells(reference, model_cells(frt_uncut.geometry("tube", t), reference))
         row["iou_uncut"] = uncut["iou"]
         row["beyond_uncut_p95_m"] = uncut["beyond_p95_m"]
+        first = compare_cells(reference, model_cells(frt_first.geometry("tube", t), reference))
+        row["iou_first_stage"] = first["iou"]
+        row["beyond_first_stage_p95_m"] = first["beyond_p95_m"]
         rows.append(row)
         artefacts[f"reference_{t:g}"] = reference
     return rows, artefacts
@@ -390,6 +401,15 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, float]:
         "rows_beyond_over_target_uncut": sum(
             r["beyond_uncut_p95_m"] > BEYOND_TARGET_M for r in rows
         ),
+        "mean_iou_first_stage": float(np.mean([r["iou_first_stage"] for r in rows])),
+        "worst_iou_first_stage": min(r["iou_first_stage"] for r in rows),
+        "p95_beyond_m_mean_first_stage": float(
+            np.mean([r["beyond_first_stage_p95_m"] for r in rows])
+        ),
+        "p95_beyond_m_max_first_stage": max(r["beyond_first_stage_p95_m"] for r in rows),
+        "rows_beyond_over_target_first_stage": sum(
+            r["beyond_first_stage_p95_m"] > BEYOND_TARGET_M for r in rows
+        ),
     }
 
 
@@ -398,7 +418,8 @@ def print_table(rows: list[dict[str, Any]]) -> None:
         f"{'setting':28s} {'t':>4s} {'recall(states)':>14s} {'recall(cells)':>13s} {'IoU':>6s} "
         f"{'beyond p95 [m]':>14s} {'IoU outer bound':>15s} {'IoU w/o network':>15s} "
         f"{'IoU partition':>13s} {'partition beyond p95 [m]':>24s} {'beyond partition p95 [m]':>24s} "
-        f"{'IoU uncut':>9s} {'beyond uncut p95 [m]':>20s}"
+        f"{'IoU uncut':>9s} {'beyond uncut p95 [m]':>20s} "
+        f"{'IoU stage 1':>11s} {'beyond stage 1 p95 [m]':>22s}"
     )
     print(header)
     print("-" * len(header))
@@ -409,7 +430,8 @@ def print_table(rows: list[dict[str, Any]]) -> None:
             f"{r['outer_bound_iou']:15.3f} {r['iou_without_network']:15.3f} "
             f"{r['partition_iou']:13.3f} {r['partition_beyond_p95_m']:24.2f} "
             f"{r['beyond_partition_p95_m']:24.2f} {r['iou_uncut']:9.3f} "
-            f"{r['beyond_uncut_p95_m']:20.2f}"
+            f"{r['beyond_uncut_p95_m']:20.2f} {r['iou_first_stage']:11.3f} "
+            f"{r['beyond_first_stage_p95_m']:22.2f}"
         )
 
 
@@ -532,7 +554,10 @@ def main() -> None:
         "cell_m": CELL_M,
         "dt_s": DT,
         "seed": args.seed,
-        "notch_cut": {"on": args.notch_cut, "bins": NOTCH_BINS, "steps": NOTCH_STEPS},
+        "notch_cut": {
+            "on": args.notch_cut,
+            "stages": [dataclasses.asdict(stage) for stage in NOTCH_STAGES],
+        },
         "partition_reference": {**PARTITION_REFERENCE, "waypoint_at": WAYPOINT_AT},
         "summary": summary,
         "rows": rows,

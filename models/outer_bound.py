@@ -17,6 +17,7 @@ import functools
 import math
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 
 from models.contract import HORIZON_S, INITIAL_SET, InitialSet
@@ -96,18 +97,61 @@ def candidate_vertices(
     return px, py, feasible
 
 
+@numba.njit(cache=True)
+def _feasible_vertices(
+    first: np.ndarray,
+    second: np.ndarray,
+    inverse: np.ndarray,
+    normals: np.ndarray,
+    supports: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`candidate_vertices` compiled, row by row: each row's feasible pair intersections
+    packed at the front of its row (x, y [K, P, 2]), sorted by angle about their centre, and their
+    counts [K]. A candidate stops being checked at the first constraint it breaks."""
+    rows, directions = supports.shape
+    pairs = len(first)
+    points = np.empty((rows, pairs, 2))
+    count = np.zeros(rows, dtype=np.int64)
+    for k in range(rows):
+        n = 0
+        for q in range(pairs):
+            a, b = supports[k, first[q]], supports[k, second[q]]
+            x = inverse[q, 0, 0] * a + inverse[q, 0, 1] * b
+            y = inverse[q, 1, 0] * a + inverse[q, 1, 1] * b
+            inside = True
+            for m in range(directions):
+                slack = 1e-7 * (1 + abs(supports[k, m]))
+                if x * normals[0, m] + y * normals[1, m] > supports[k, m] + slack:
+                    inside = False
+                    break
+            if inside:
+                points[k, n, 0], points[k, n, 1] = x, y
+                n += 1
+        if n:
+            centre_x, centre_y = points[k, :n, 0].mean(), points[k, :n, 1].mean()
+            angle = np.arctan2(points[k, :n, 1] - centre_y, points[k, :n, 0] - centre_x)
+            points[k, :n] = points[k, :n][np.argsort(angle, kind="mergesort")]
+        count[k] = n
+    return points, count
+
+
 def half_plane_polygons(directions: np.ndarray, supports: np.ndarray) -> list[np.ndarray]:
     """Vertices (counter-clockwise) of {p : p . (cos phi_m, sin phi_m) <= support[k, m] for all m},
-    for every row k of ``supports`` [K, M] at once (``candidate_vertices``, sorted by angle about
-    their centre); each polygon is convex."""
-    px, py, feasible = candidate_vertices(directions, np.asarray(supports, dtype=float))
-    count = feasible.sum(axis=1)
-    centre_x = np.where(feasible, px, 0.0).sum(axis=1) / np.maximum(count, 1)
-    centre_y = np.where(feasible, py, 0.0).sum(axis=1) / np.maximum(count, 1)
-    angle = np.arctan2(py - centre_y[:, None], px - centre_x[:, None])
-    order = np.argsort(np.where(feasible, angle, np.inf), axis=1)  # the vertices first, in turn
-    xs, ys = np.take_along_axis(px, order, axis=1), np.take_along_axis(py, order, axis=1)
-    return [np.stack([xs[k, :n], ys[k, :n]], axis=1) for k, n in enumerate(count.tolist())]
+    for every row k of ``supports`` [K, M] (the feasible intersections of every pair of boundary
+    lines, as ``candidate_vertices``, sorted by angle about their centre; compiled, so that 32
+    directions cost what 16 did in numpy); each polygon is convex."""
+    first, second, inverse = _line_pairs(tuple(float(d) for d in directions))
+    normals = np.stack([np.cos(directions), np.sin(directions)]).astype(np.float64)
+    points, count = _feasible_vertices(
+        first, second, inverse, normals, np.ascontiguousarray(supports, dtype=np.float64)
+    )
+    return [points[k, :n] for k, n in enumerate(count.tolist())]
+
+
+def compile_polygon_kernel() -> None:
+    """Compile (or load from numba's cache) :func:`half_plane_polygons`' kernel before a request
+    needs it: ~5 s the first time after a change, ~0.3 s from the cache."""
+    half_plane_polygons(np.arange(4) * (math.pi / 2), np.ones((1, 4)))
 
 
 def half_plane_polygon(directions: np.ndarray, support: np.ndarray) -> np.ndarray:

@@ -13,8 +13,9 @@ it with httpx from this process. Prints medians and p99 for:
    and the same through one request for an agent whose predictor is unsure of the steering (its
    steering bounds near +-1 rad/s: it may turn round, so with ``FRT_FRT_NOTCH_CUT``, the default,
    the service refines its sets in the background), and from the observation until that
-   refinement is served (``frt_refinement: done``, polled every 2 ms; the bench passes the
-   caller's ``FRT_*`` environment to the service);
+   refinement's first stage is served (``frt_refinement_stage: 1``) and until its last is
+   (``frt_refinement: done``), polled every 2 ms; the bench passes the caller's ``FRT_*``
+   environment to the service;
 3. contours for one agent (tube + 3 slices), on a fresh FRT version each time;
 4. sustained: 50 agents observed at 2 Hz while a planner (a process of its own) checks all of
    them at 10 Hz with one multi-agent request per round; a round misses its deadline when its
@@ -25,7 +26,8 @@ it with httpx from this process. Prints medians and p99 for:
 6. the exact set alone, in-process, for a moving, a parked and a wide-bound car (for the moving car
    also with the projection network evaluated at every lattice node, i.e. without
    ``service.refine``; for the wide one also cut to the speed-coupled partition, the service's
-   background refinement of such sets, ``FRTEngine.exact(notch_cut=True)``);
+   background refinement of such sets, ``FRTEngine.exact(notch_cut=True)``, by its first stage
+   and by its last, ``service.engine.NOTCH_STAGES``);
 7. serialising a 50-agent collision answer in-process, the way the service does
    (``service.routes.model_json``) and the way FastAPI does for a returned model (validated again
    against ``response_model``, then ``jsonable_encoder`` and ``json.dumps``), alternately;
@@ -209,21 +211,31 @@ def bench_observe_to_ready(client: httpx.Client, n: int) -> dict[str, dict]:
 def bench_observe_to_ready_wide(client: httpx.Client, n: int) -> dict[str, dict]:
     """The same through one request for an agent whose predictor is unsure of the steering
     (WIDE_STEERING_VAR): its sets may turn round, so the service also refines them in the
-    background (FRT_FRT_NOTCH_CUT); then, polling ``GET /v1/agents/{id}`` every 2 ms, until that
-    refinement is served (``frt_refinement: done``)."""
+    background (FRT_FRT_NOTCH_CUT); then, polling ``GET /v1/agents/{id}`` every 2 ms, until its
+    first stage is served (``frt_refinement_stage``) and until its last is (``frt_refinement:
+    done``)."""
     rng = np.random.default_rng(2)
     wide = WIDE_STEERING_VAR
     client.post("/v1/agents/bench-wide/observations", json=observation(0.0, rng, True, 0.0, wide))
-    ready, refined = [], []
+    ready, first, refined = [], [], []
     for i in range(1, n + 1):
         t0 = time.perf_counter()
         body = observation(float(i), rng, False, 0.0, wide)
         ready.append(observe_until_ready(client, "bench-wide", body))
-        while (state := client.get("/v1/agents/bench-wide").json()["frt_refinement"]) == "pending":
+        first_seen = False
+        while True:
+            agent = client.get("/v1/agents/bench-wide").json()
+            if not first_seen and (agent.get("frt_refinement_stage") or 0) >= 1:
+                first.append(time.perf_counter() - t0)
+                first_seen = True
+            if agent["frt_refinement"] != "pending":
+                break
             time.sleep(0.002)
-        if state == "done":
+        if agent["frt_refinement"] == "done":
             refined.append(time.perf_counter() - t0)
     out = {"observation_to_frt_ready_wide_steering": stats(ready)}
+    if first:
+        out["observation_to_frt_first_cut_wide_steering"] = stats(first)
     if refined:
         out["observation_to_frt_refined_wide_steering"] = stats(refined)
     return out
@@ -566,18 +578,25 @@ def bench_exact_in_process(model: Path, n: int) -> dict[str, dict]:
     out = {}
     for name, (v_start, bounds) in EXACT_CASES.items():
         b = np.array(bounds)
-        variants = {name: engine}
+
+        def run(
+            e: FRTEngine, stage: int | None = None, v: float = v_start, b: np.ndarray = b
+        ) -> Callable[[], object]:
+            return lambda: e.exact(Pose(0.0, 0.0, 0.0), v, b, notch_stage=stage)
+
+        variants = {name: run(engine)}
         if "moving" in name:
-            variants[f"{name}_every_node"] = full
-        if "wide" in name:
-            variants[f"{name}_notch_cut"] = notched
+            variants[f"{name}_every_node"] = run(full)
+        if "wide" in name:  # each stage of the refinement (NOTCH_STAGES), the last as before
+            variants[f"{name}_notch_cut_stage_1"] = run(notched, 1)
+            variants[f"{name}_notch_cut"] = run(notched)
         times: dict[str, list[float]] = {key: [] for key in variants}
-        for e in variants.values():
-            e.exact(Pose(0.0, 0.0, 0.0), v_start, b)  # warm-up
+        for compute in variants.values():
+            compute()  # warm-up
         for _ in range(n):
-            for key, e in variants.items():
+            for key, compute in variants.items():
                 t0 = time.perf_counter()
-                e.exact(Pose(0.0, 0.0, 0.0), v_start, b)
+                compute()
                 times[key].append(time.perf_counter() - t0)
         out.update({key: stats(values) for key, values in times.items()})
     return out

@@ -44,8 +44,9 @@ def render(card: dict) -> str:
         "",
         "| setting | t [s] | recall (states) | recall (cells) | IoU | beyond p95 [m] "
         "| IoU outer bound | IoU without network | partition: recall (cells) / IoU / beyond p95 [m] "
-        "| beyond partition p95 [m] | uncut: IoU / beyond p95 [m] |",
-        "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+        "| beyond partition p95 [m] | uncut: IoU / beyond p95 [m] "
+        "| first stage: IoU / beyond p95 [m] |",
+        "| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
     ]
     for r in acc["rows"]:
         partition = (
@@ -60,7 +61,9 @@ def render(card: dict) -> str:
             f"| {r.get('iou_without_network', float('nan')):.3f} | {partition} "
             f"| {r.get('beyond_partition_p95_m', float('nan')):.2f} "
             f"| {r.get('iou_uncut', float('nan')):.3f} / "
-            f"{r.get('beyond_uncut_p95_m', float('nan')):.2f} |"
+            f"{r.get('beyond_uncut_p95_m', float('nan')):.2f} "
+            f"| {r.get('iou_first_stage', float('nan')):.3f} / "
+            f"{r.get('beyond_first_stage_p95_m', float('nan')):.2f} |"
         )
     lines += [
         "",
@@ -85,6 +88,13 @@ def render(card: dict) -> str:
         f"{s.get('p95_beyond_m_mean_uncut', float('nan')):.2f} "
         f"({s.get('p95_beyond_m_max_uncut', float('nan')):.2f}); "
         f"{s.get('rows_beyond_over_target_uncut', '?')} |",
+        f"| first stage's cut (served until the last lands): mean (worst) IoU | "
+        f"{s.get('mean_iou_first_stage', float('nan')):.3f} "
+        f"({s.get('worst_iou_first_stage', float('nan')):.3f}) |",
+        f"| first stage's cut: beyond p95, mean (worst) [m]; rows over 1.5 m | "
+        f"{s.get('p95_beyond_m_mean_first_stage', float('nan')):.2f} "
+        f"({s.get('p95_beyond_m_max_first_stage', float('nan')):.2f}); "
+        f"{s.get('rows_beyond_over_target_first_stage', '?')} |",
         f"| farthest reach beyond the outer bound (union of 0.025 s sweep polygons) [m] | "
         f"{s.get('beyond_outer_bound_max_m', float('nan')):.3f} |",
         f"| partition bound: min recall (cells) | "
@@ -136,12 +146,26 @@ def _served(acc: dict) -> list[str]:
     notch = acc.get("notch_cut") or {}
     if not notch.get("on"):
         return ["The service's tube here is the exact set as computed (no notch cut)."]
+    stages = notch.get("stages") or [
+        {"heading_bins": notch["bins"], "waypoint_bins": 1, "steps": notch["steps"]}
+    ]
+
+    def partition(stage: dict) -> str:
+        waypoints = stage.get("waypoint_bins", 1)
+        split = f" x {waypoints} waypoint bins" if waypoints > 1 else ""
+        directions = stage.get("n_directions", 16)
+        return (
+            f"{stage['heading_bins']} heading bins{split}, speed programmes on {stage['steps']} "
+            f"sub-intervals, polygons in {directions} directions"
+        )
+
+    described = "; then ".join(partition(stage) for stage in stages)
     return [
         "The service's tube here is the set it serves once refined (`FRT_FRT_NOTCH_CUT`, on by "
         "default): the exact set, where the car may turn round, cut to a speed-coupled partition "
-        f"of {notch['bins']} heading bins with the speed programmes on {notch['steps']} "
-        "sub-intervals (`service.engine.NotchCut`), which a worker computes once the uncut set is "
-        "ready. The last column is the uncut set, which the service answers from until then."
+        f"(`service.engine.NOTCH_STAGES`: {described}), which a worker computes once the uncut "
+        "set is ready, one stage after the other. The last columns are the sets the service "
+        "answers from until then: the uncut set, and the first stage's cut."
     ]
 
 

@@ -3,9 +3,9 @@
 ``python scripts/refinement_landing.py --agents 5 --hz 2 --seconds 15`` starts the service with the
 shipped model, observes that many agents whose predictor is unsure of the steering (so each of
 their sets may turn round and is refined) at ``--hz`` each for ``--seconds``, and prints the
-server's ``frt_refinements_total`` by outcome: landed on the agent's current set (served), stale
-(it landed once a later version had come: checks ask for that one), dropped before it ran, wasted
-or failed. A refinement is only worth its cost while its version is current; this says how often
+server's ``frt_refinements_total`` by stage of the notch cut and outcome: landed on the agent's
+current set (served), stale (it landed once a later version had come: checks ask for that one),
+dropped before it ran, wasted or failed. A refinement is only worth its cost while its version is current; this says how often
 that is, for a number of agents and an observation rate.
 """
 
@@ -56,14 +56,17 @@ async def observe(url: str, agents: int, hz: float, seconds: float) -> None:
         await asyncio.sleep(1.0)  # the last refinements finish
 
 
-def refinement_counts(url: str) -> dict[str, int]:
-    """The server's ``frt_refinements_total`` by outcome, from ``/metrics``."""
-    counts = dict.fromkeys(OUTCOMES, 0)
+def refinement_counts(url: str) -> dict[str, dict[str, int]]:
+    """The server's ``frt_refinements_total`` by stage and outcome, from ``/metrics``."""
+    counts: dict[str, dict[str, int]] = {}
     for line in httpx.get(f"{url}/metrics", timeout=10).text.splitlines():
         if line.startswith("frt_refinements_total{"):
             outcome = line.split('outcome="')[1].split('"')[0]
-            counts[outcome] = int(float(line.rsplit(" ", 1)[1]))
-    return counts
+            stage = line.split('stage="')[1].split('"')[0]
+            counts.setdefault(stage, dict.fromkeys(OUTCOMES, 0))[outcome] = int(
+                float(line.rsplit(" ", 1)[1])
+            )
+    return dict(sorted(counts.items()))
 
 
 def main() -> None:
@@ -76,10 +79,14 @@ def main() -> None:
     with running_service(args.model.resolve()) as url:
         asyncio.run(observe(url, args.agents, args.hz, args.seconds))
         counts = refinement_counts(url)
-    total = sum(counts.values())
-    served = counts["landed"] / total if total else float("nan")
     print(json.dumps({"agents": args.agents, "hz": args.hz, "seconds": args.seconds, **counts}))
-    print(f"served (landed on the current set): {counts['landed']} of {total} ({served:.0%})")
+    for stage, by_outcome in counts.items():
+        total = sum(by_outcome.values())
+        served = by_outcome["landed"] / total if total else float("nan")
+        print(
+            f"stage {stage}: served (landed on the current set) {by_outcome['landed']} of "
+            f"{total} ({served:.0%})"
+        )
 
 
 if __name__ == "__main__":

@@ -237,6 +237,7 @@ async def get_agent(services: Services, agent_id: str, wait_frt_s: float = 0.0) 
         frt_version=state.frt_version,
         frt_ready=ready,
         frt_refinement=services.refinement_state(exact, key),
+        frt_refinement_stage=services.refinement_stage(exact),
         config=EffectiveConfig(beta_high=float(belief.betas[-1]), **config),
     )
 

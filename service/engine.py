@@ -38,7 +38,6 @@ from shapely.geometry.base import BaseGeometry
 from shapely.geometry.polygon import orient
 
 from models.contract import BOUND_COLUMNS, COL, N_INPUTS
-from models.corridor_bound import DIRECTIONS as NOTCH_DIRECTIONS
 from models.corridor_bound import (
     bin_headings,
     bins_union,
@@ -75,20 +74,37 @@ SWEEPS_PER_WINDOW = 4
 
 #: The notch cut (``exact(notch_cut=True)``; the service refines its sets with it in the
 #: background, ``FRT_FRT_NOTCH_CUT``): instants whose heading interval passes NOTCH_HEADING (the car
-#: may head backwards, so the set may have a notch behind it) are cut to the speed-coupled
-#: partition of NOTCH_BINS final-heading bins, its speed programmes on NOTCH_STEPS sub-intervals
-#: (``models.corridor_bound.partition_supports``). 32 x 90: with the speed programme compiled
-#: (``models.speed_lp``) a wide set cut so costs ~0.2 s in-process, what 12 x 30 cost in numpy;
-#: one-off runs of the evaluation on its seven notch settings (``--only``) gave "beyond" p95 mean
-#: 2.20 m at 12 x 30, 1.93 at 16 x 45, 1.69 at 32 x 60 and 1.60 m at 32 x 90 (11, 11, 11 and 9 of
-#: their 21 rows over 1.5 m).
+#: may head backwards, so the set may have a notch behind it) are cut to a speed-coupled partition
+#: (``models.corridor_bound.partition_supports``) of one of NOTCH_STAGES.
 NOTCH_HEADING = math.pi / 2
-NOTCH_BINS = 32
-#: Waypoint heading bins per final-heading bin (``partition_supports``): 8 would leave 3 of the
-#: notch settings' 24 rows over 1.5 m instead of 6, but cut a set in ~1.1 s instead of ~0.17 s,
-#: which a refinement rarely has before its version is superseded (docs/model.md).
-NOTCH_WAYPOINT_BINS = 1
-NOTCH_STEPS = 90
+
+
+@dataclass(frozen=True)
+class NotchPartition:
+    """How finely one stage of the notch cut partitions the trajectories: final-heading bins,
+    waypoint heading bins in each, sub-intervals of its speed programmes, and support directions
+    of its bins' polygons (evenly spaced)."""
+
+    heading_bins: int
+    waypoint_bins: int
+    steps: int
+    n_directions: int
+
+    @property
+    def directions(self) -> np.ndarray:
+        return np.arange(self.n_directions) * (2 * math.pi / self.n_directions)
+
+
+#: The notch cut's stages, coarse to fine: the service refines a set by each in turn, each landing
+#: as soon as it is done, so a planner gets the quick cut within ~0.15 s of an observation and the
+#: fine one within ~1 s if no newer observation has come (in-process, ``make bench``). Measured by
+#: the evaluation's notch settings (``make evaluate-full``, docs/model.md): the fine stage's waypoint
+#: bins pin the heading early, where the notch's walls are made, and its 32 directions fit each
+#: bin's polygon closer.
+NOTCH_STAGES = (
+    NotchPartition(heading_bins=32, waypoint_bins=1, steps=90, n_directions=16),
+    NotchPartition(heading_bins=32, waypoint_bins=8, steps=90, n_directions=32),
+)
 
 
 @dataclass(frozen=True)
@@ -96,8 +112,9 @@ class NotchCut:
     """The partition at the instants of a set it cuts (``cut`` [J], C of them): supports [C, B, M],
     ``empty`` bins [C, B] and each bin's headings [C, B, 2], one row per cut instant in order; per
     instant the farthest a car moves in half an instant either side of it (``reach_m`` [J]), and
-    how far its heading turns meanwhile. (Only the cut instants' rows: a cached refined set keeps
-    them for its slices, ~60 kB.)"""
+    how far its heading turns meanwhile; the stage that made it and its support directions [M].
+    (Only the cut instants' rows: a cached refined set keeps them for its slices, ~60 kB for the
+    first stage.)"""
 
     cut: np.ndarray
     supports: np.ndarray
@@ -105,6 +122,9 @@ class NotchCut:
     headings: np.ndarray
     reach_m: np.ndarray
     turn_rad: float
+    #: Which of NOTCH_STAGES made it (1 for the first).
+    stage: int
+    directions: np.ndarray
 
 
 #: Slice spacing when the distilled projection network is present (its level is calibrated on the
@@ -517,11 +537,11 @@ class FieldTubeSet(FRTSet):
                 notch.headings[i],
                 reach,
                 notch.turn_rad,
-                NOTCH_DIRECTIONS,
+                notch.directions,
                 before=before,
                 after=after,
             )
-            region = bins_union(swept, notch.empty[i], NOTCH_DIRECTIONS)
+            region = bins_union(swept, notch.empty[i], notch.directions)
         else:
             polygon = shapely.Polygon(self.bound.polygons_at([self.bound_rows[j]])[0])
             region = grown_to_hold(polygon, reach)
@@ -905,14 +925,20 @@ class FRTEngine:
         return self.model.evaluate_projection(x), len(px)
 
     def exact(
-        self, pose: Pose, v_start: float, bounds: np.ndarray, notch_cut: bool | None = None
+        self,
+        pose: Pose,
+        v_start: float,
+        bounds: np.ndarray,
+        notch_cut: bool | None = None,
+        notch_stage: int | None = None,
     ) -> FieldTubeSet:
         """The model's set {W <= level} ∩ outer bound, sampled per slice (see FieldTubeSet); the
         whole tube is built at once (collision checks need it first), the rest on demand.
         ``notch_cut`` (default: the engine's) also cuts it to the speed-coupled partition where
         a notch is possible (``NotchCut``), and then draws every tube at once: a set cut in a
         worker process (the service's background refinement) reaches the server with them, so a
-        check there draws none on the event loop.
+        check there draws none on the event loop. ``notch_stage``: which of NOTCH_STAGES cuts it
+        (1 for the first; default the last, the finest).
 
         Every instant's fields are computed together on windows padded to one shape
         (``service.field_stack``)."""
@@ -1004,7 +1030,11 @@ class FRTEngine:
             rows,
             self._box_tube(pose, ob),
             coarse=coarse,
-            notch=self._notch(ob, rows, v_start, bounds, cut) if cut_now else None,
+            notch=(
+                self._notch(ob, rows, v_start, bounds, cut, notch_stage or len(NOTCH_STAGES))
+                if cut_now
+                else None
+            ),
             notch_possible=bool(cut.any()),
         )
         frt.evaluations = evaluations
@@ -1030,20 +1060,29 @@ class FRTEngine:
         v_start: float,
         bounds: np.ndarray,
         cut: np.ndarray,
+        stage: int,
     ) -> NotchCut:
-        """The partition at the instants ``cut`` (``notch_instants``)."""
+        """The partition of NOTCH_STAGES[stage - 1] at the instants ``cut``
+        (``notch_instants``)."""
+        partition = NOTCH_STAGES[stage - 1]
+        directions = partition.directions
         support, empty = partition_supports(
             v_start,
             bounds,
             ob.times[rows][cut],
-            NOTCH_BINS,
+            partition.heading_bins,
             1,
-            steps=NOTCH_STEPS,
+            steps=partition.steps,
             coupled_speed=True,
-            waypoint_bins=NOTCH_WAYPOINT_BINS,
+            directions=directions,
+            waypoint_bins=partition.waypoint_bins,
         )
         headings = bin_headings(
-            bounds, ob.times[rows][cut], NOTCH_BINS, NOTCH_WAYPOINT_BINS, horizon=self.horizon
+            bounds,
+            ob.times[rows][cut],
+            partition.heading_bins,
+            partition.waypoint_bins,
+            horizon=self.horizon,
         )
         # The fastest speed of the sweeps within half an instant of each instant.
         k = self.outer_steps_per_slice
@@ -1057,6 +1096,8 @@ class FRTEngine:
             headings=headings,
             reach_m=reach,
             turn_rad=max_turn_rate(bounds) * half,
+            stage=stage,
+            directions=directions,
         )
 
     def levels(self, ob: OuterBound, rows: list[int]) -> np.ndarray:

@@ -30,8 +30,9 @@ from typing import Any
 import numpy as np
 
 from models.contract import N_INPUTS
+from models.outer_bound import compile_polygon_kernel
 from models.speed_lp import compile_speed_programme
-from service.engine import BoxTubeSet, FieldTubeSet, FRTEngine, FRTSet, Pose
+from service.engine import NOTCH_STAGES, BoxTubeSet, FieldTubeSet, FRTEngine, FRTSet, Pose
 from service.memory import freeze_start_up_objects, keep_freed_memory
 from service.pipe_pool import PipePool
 
@@ -71,30 +72,47 @@ for _cls in (FieldTubeSet, BoxTubeSet):
 
 @dataclass
 class ExactTask:
-    """``engine.exact(pose, v_start, bounds, notch_cut)``: with the given engine (threads) or, once
-    pickled to a worker process, with that process's own."""
+    """``engine.exact(pose, v_start, bounds, notch_cut, notch_stage)``: with the given engine
+    (threads) or, once pickled to a worker process, with that process's own."""
 
     pose: Pose
     v_start: float
     bounds: np.ndarray
     engine: FRTEngine | None = field(default=None, repr=False, compare=False)
     notch_cut: bool = False
+    notch_stage: int | None = None
 
     def __reduce__(self) -> tuple[Any, ...]:
-        return ExactTask, (self.pose, self.v_start, self.bounds, None, self.notch_cut)
+        fields = (self.pose, self.v_start, self.bounds, None, self.notch_cut, self.notch_stage)
+        return ExactTask, fields
 
     def __call__(self) -> FRTSet:
         engine = self.engine if self.engine is not None else _engine
         if engine is None:
             raise RuntimeError("no engine in this process")
-        return engine.exact(self.pose, self.v_start, self.bounds, notch_cut=self.notch_cut)
+        return engine.exact(
+            self.pose,
+            self.v_start,
+            self.bounds,
+            notch_cut=self.notch_cut,
+            notch_stage=self.notch_stage,
+        )
+
+    @property
+    def stage(self) -> int:
+        """Which notch-cut stage this task computes (0: the uncut set)."""
+        return (self.notch_stage or len(NOTCH_STAGES)) if self.notch_cut else 0
 
     def refinement(self, result: object) -> ExactTask | None:
-        """The same set cut to the speed-coupled partition, if ``result`` (this task's set) is
-        uncut and could be cut (``FieldTubeSet.notch_possible``); else None."""
-        if self.notch_cut or not getattr(result, "notch_possible", False):
+        """The same set cut by the next of NOTCH_STAGES, if ``result`` (this task's set) could be
+        cut (``FieldTubeSet.notch_possible``) and is not cut by the last stage yet; else None."""
+        if not getattr(result, "notch_possible", False):
             return None
-        return replace(self, notch_cut=True)
+        notch = getattr(result, "notch", None)
+        done = notch.stage if notch is not None else 0
+        if done >= len(NOTCH_STAGES):
+            return None
+        return replace(self, notch_cut=True, notch_stage=done + 1)
 
 
 def init_worker(model_path: str, nice: int, parent_pid: int, policy: str = "idle") -> None:
@@ -107,10 +125,12 @@ def init_worker(model_path: str, nice: int, parent_pid: int, policy: str = "idle
 
     _engine = FRTEngine(ValueModel.load(Path(model_path)))
     # The first runtime call and contour are slower than the rest, and the partition's dynamic
-    # programme is compiled on first use (numba): take them before any request.
+    # programme and the polygons' kernel are compiled on first use (numba): take them before any
+    # request.
     with contextlib.suppress(Exception):  # bounds outside a model's ranges: warm on a real set
         warm_up_task(_engine)()
     compile_speed_programme()
+    compile_polygon_kernel()
     if _engine.use_projection:  # the runtime's memory arena sized for the largest sets up front
         _engine.model.evaluate_projection(np.zeros((4 * _engine.max_nodes, N_INPUTS), np.float32))
     threading.Thread(target=_exit_with_parent, args=(parent_pid,), daemon=True).start()

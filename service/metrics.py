@@ -50,8 +50,9 @@ class Metrics:
             "Background refinements of exact sets (the notch cut), by outcome: landed (it replaced "
             "the agent's current set), stale (it replaced its set, but a later version had come: "
             "checks no longer ask for it), dropped (its version superseded or its agent forgotten "
-            "before it ran), wasted (it ran, but its set had left the cache) or failed (it raised)",
-            ["outcome"],
+            "before it ran), wasted (it ran, but its set had left the cache) or failed (it "
+            "raised); and by stage (1 for a set's first refinement, 2 for the next)",
+            ["outcome", "stage"],
             registry=r,
         )
         self.frt_failures = Counter(

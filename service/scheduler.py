@@ -33,6 +33,10 @@ from service.metrics import Metrics
 
 log = logging.getLogger("frt.scheduler")
 
+#: Queued refinements by slot (agent, or key for the stateless endpoint): the key, its compute and
+#: when it was queued.
+_RefineQueue = OrderedDict[Hashable, tuple["FRTKey", Callable[[], Any], float]]
+
 
 @dataclass(frozen=True)
 class FRTKey:
@@ -169,12 +173,14 @@ class FRTScheduler:
         self._typical_s = 0.0
         self._discard: set[FRTKey] = set()  # running for a forgotten agent: do not cache
         #: Given a finished set's compute and result, the compute of a tighter set of the same key
-        #: (or None): queued one per agent, run when no exact set waits (``_dispatch``).
+        #: (or None): queued one per agent, run when no exact set waits (``_dispatch``). Asked
+        #: again of each refinement that lands, so refinements may come in stages.
         self.refinement: Callable[[Callable[[], Any], Any], Callable[[], Any] | None] | None = None
-        #: Per agent (or key): its latest version's refinement and when it was queued.
-        self._refine_queue: OrderedDict[Hashable, tuple[FRTKey, Callable[[], Any], float]] = (
-            OrderedDict()
-        )
+        #: Per agent (or key): its latest version's refinement and when it was queued. A set's
+        #: first refinement waits in the first queue, further stages in the second, which runs
+        #: only while the first is empty: a quick first cut of every agent before any fine one.
+        self._refine_queue: _RefineQueue = OrderedDict()
+        self._refine_later: _RefineQueue = OrderedDict()
         self._refining: set[FRTKey] = set()
         #: Keys whose refinement raised, newest last (as many as the cache holds sets).
         self._refine_failed: OrderedDict[FRTKey, None] = OrderedDict()
@@ -205,6 +211,7 @@ class FRTScheduler:
             queued = [self._pending.pop(key) for key in self._queue.values()]
             self._queue.clear()
             self._refine_queue.clear()
+            self._refine_later.clear()
         for job in queued:
             job.future.cancel()
         if executor is not None:
@@ -321,8 +328,7 @@ class FRTScheduler:
             self._cache.forget(agent_id)
             queued = self._queue.pop(agent_id, None)
             job = self._pending.pop(queued) if queued is not None else None
-            if self._refine_queue.pop(agent_id, None) is not None:
-                self._metrics.refinements.labels("dropped").inc()
+            self._drop_queued_refinement(agent_id)
             self._discard.update(
                 k for k in self._running | self._refining if k.agent_id == agent_id
             )
@@ -358,19 +364,22 @@ class FRTScheduler:
 
     def _dispatch_refinements(self) -> None:
         """Start queued refinements on free workers, keeping one worker for exact sets (called with
-        the lock held and no exact set queued): the newest first, or the oldest once it has waited
-        REFINE_OLDEST_AFTER_S. A refinement whose set left the cache (a newer version, or
-        forgotten) is dropped."""
+        the lock held and no exact set queued): first stages before later ones; in each queue the
+        newest first, or the oldest once it has waited REFINE_OLDEST_AFTER_S. A refinement whose
+        set left the cache (a newer version, or forgotten) is dropped."""
         executor = self._executor
         assert executor is not None
-        while self._refine_queue and len(self._refining) < max(self._workers - 1, 1):
+        while len(self._refining) < max(self._workers - 1, 1):
             if len(self._running) + len(self._refining) >= self._workers:
                 return
-            oldest = next(iter(self._refine_queue.values()))
+            queue = self._refine_queue or self._refine_later
+            if not queue:
+                return
+            oldest = next(iter(queue.values()))
             waited = time.perf_counter() - oldest[2]
-            _, (key, compute, _) = self._refine_queue.popitem(last=waited < REFINE_OLDEST_AFTER_S)
+            _, (key, compute, _) = queue.popitem(last=waited < REFINE_OLDEST_AFTER_S)
             if key not in self._cache:
-                self._metrics.refinements.labels("dropped").inc()
+                self._count_refinement("dropped", compute)
                 continue
             self._refining.add(key)
             try:
@@ -378,7 +387,19 @@ class FRTScheduler:
             except Exception as exc:
                 handle = Future()
                 handle.set_exception(exc)
-            handle.add_done_callback(functools.partial(self._refined, key))
+            handle.add_done_callback(functools.partial(self._refined, key, compute))
+
+    def _count_refinement(self, outcome: str, compute: Callable[[], Any]) -> None:
+        """``frt_refinements_total`` by outcome and stage (the compute's ``stage``, else 1)."""
+        stage = str(getattr(compute, "stage", 1))
+        self._metrics.refinements.labels(outcome, stage).inc()
+
+    def _drop_queued_refinement(self, slot: Hashable) -> None:
+        """Drop the refinement queued in ``slot``, in either queue (called with the lock held)."""
+        for queue in (self._refine_queue, self._refine_later):
+            entry = queue.pop(slot, None)
+            if entry is not None:
+                self._count_refinement("dropped", entry[1])
 
     def _superseded(self, key: FRTKey) -> bool:
         """Whether a later version of ``key``'s agent is queued, running or cached (called with the
@@ -398,20 +419,26 @@ class FRTScheduler:
         with self._lock:
             return key in self._refine_failed
 
-    def _queue_refinement(self, key: FRTKey, compute: Callable[[], Any], result: Any) -> None:
+    def _queue_refinement(
+        self, key: FRTKey, compute: Callable[[], Any], result: Any, later: bool = False
+    ) -> None:
+        """Queue the refinement of ``key``'s set ``result`` (made by ``compute``), if there is one:
+        in the second queue if ``result`` is itself a refinement (``later``)."""
         refine = self.refinement
         follow_up = refine(compute, result) if refine is not None else None
         if follow_up is None:
             return
         with self._lock:
             slot: Hashable = key.agent_id or key
-            if self._refine_queue.pop(slot, None) is not None:  # the newer one goes to the back
-                self._metrics.refinements.labels("dropped").inc()
-            self._refine_queue[slot] = (key, follow_up, time.perf_counter())
+            self._drop_queued_refinement(slot)  # the newer one goes to the back
+            queue = self._refine_later if later else self._refine_queue
+            queue[slot] = (key, follow_up, time.perf_counter())
 
-    def _refined(self, key: FRTKey, handle: Future[Any]) -> None:
+    def _refined(self, key: FRTKey, compute: Callable[[], Any], handle: Future[Any]) -> None:
         """A refinement is done: its set replaces the cached one of the same key (if still
-        cached; a newer version or a forgotten agent drops it)."""
+        cached; a newer version or a forgotten agent drops it), and its own refinement, if any, is
+        queued while the set is its agent's current one."""
+        follow = False
         with self._lock:
             self._refining.discard(key)
             discard = key in self._discard
@@ -423,9 +450,10 @@ class FRTScheduler:
                 if landed:
                     outcome = "stale" if self._superseded(key) else "landed"
                     self._metrics.frt_compute_seconds.labels("refined").observe(handle.result()[1])
-                self._metrics.refinements.labels(outcome).inc()
+                self._count_refinement(outcome, compute)
+                follow = outcome == "landed"
             elif not discard and not isinstance(error, CancelledError):
-                self._metrics.refinements.labels("failed").inc()
+                self._count_refinement("failed", compute)
                 self._refine_failed[key] = None
                 while len(self._refine_failed) > self._cache_size:
                     self._refine_failed.popitem(last=False)
@@ -434,6 +462,8 @@ class FRTScheduler:
                 "FRT refinement failed",
                 extra={"agent_id": key.agent_id, "frt_version": key.version, "error": repr(error)},
             )
+        if follow:
+            self._queue_refinement(key, compute, handle.result()[0], later=True)
         self._dispatch()
 
     def _finished(self, key: FRTKey, handle: Future[Any]) -> None:
@@ -484,6 +514,7 @@ class FRTScheduler:
             self._executor = ThreadPoolExecutor(self._workers, thread_name_prefix="frt-exact")
             self.refinement = None  # on threads they would hold the event loop's GIL
             self._refine_queue.clear()
+            self._refine_later.clear()
             self._pending[key] = job
             self._running.add(key)
             self._started[key] = time.perf_counter()

@@ -206,8 +206,14 @@ class AgentResponse(Response):
         None,
         description="once the exact FRT is ready: whether it is being tightened in the background "
         "(an agent that may turn round: its set cut to the speed-coupled partition, "
-        "FRT_FRT_NOTCH_CUT), and whether that is done, or failed (the served set then stays the "
-        "uncut one, which contains the cut one); null before",
+        "FRT_FRT_NOTCH_CUT, in stages, quick then fine), and whether that is done (its last "
+        "stage served), or failed (the served set then stays the one before, which contains the "
+        "cut one); null before",
+    )
+    frt_refinement_stage: int | None = Field(
+        None,
+        description="once the exact FRT is ready: how many stages of the notch cut the served set "
+        "has had (0: uncut; the last stage means frt_refinement is done); null before",
     )
     config: EffectiveConfig
 

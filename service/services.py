@@ -21,8 +21,9 @@ import numpy as np
 from starlette.concurrency import run_in_threadpool
 from starlette.requests import HTTPConnection
 
+from models.outer_bound import compile_polygon_kernel
 from service.answer_cost import AnswerCosts
-from service.engine import FRTEngine, FRTSet, Pose
+from service.engine import NOTCH_STAGES, FRTEngine, FRTSet, Pose
 from service.errors import ServiceUnavailableError
 from service.exact_worker import ExactTask, start_pool, warm_up_task
 from service.memory import freeze_start_up_objects, keep_freed_memory
@@ -125,6 +126,7 @@ class Services:
         try:
             model = ValueModel.load(path)
             engine = FRTEngine(model)
+            compile_polygon_kernel()  # before readiness: a first call would stall the event loop
         except Exception as exc:  # a missing or broken model must not stop the service
             self.model_error = f"model not loaded: {exc}"
             log.error("model not loaded", extra={"model_path": str(path), "error": str(exc)})
@@ -233,18 +235,28 @@ class Services:
         return ExactTask(job.pose, job.v_start, job.bounds, self.require_engine())
 
     def refinement_state(self, exact: FRTSet | None, key: FRTKey) -> str | None:
-        """Of the ready exact set of ``key``: "done" if it is the notch-cut refinement, "failed"
-        if that raised (the set stays the uncut one, which contains the cut one), "pending" if one
-        is due (``FRT_FRT_NOTCH_CUT`` and a set that may turn round), else "not_needed"; None if
-        no set."""
+        """Of the ready exact set of ``key``: "done" if it is cut by the notch cut's last stage,
+        "failed" if a refinement raised (the set stays the one before, which contains the cut
+        one), "pending" if a stage is due (``FRT_FRT_NOTCH_CUT`` and a set that may turn round;
+        the first stage may have landed already), else "not_needed"; None if no set."""
         if exact is None:
             return None
-        if getattr(exact, "notch", None) is not None:
+        notch = getattr(exact, "notch", None)
+        if notch is not None and notch.stage >= len(NOTCH_STAGES):
             return "done"
         if self.scheduler.refinement_failed(key):
             return "failed"
         due = self.scheduler.refinement is not None and getattr(exact, "notch_possible", False)
         return "pending" if due else "not_needed"
+
+    @staticmethod
+    def refinement_stage(exact: FRTSet | None) -> int | None:
+        """Of the ready exact set: how many stages of the notch cut it has had (0: uncut); None if
+        no set."""
+        if exact is None:
+            return None
+        notch = getattr(exact, "notch", None)
+        return int(notch.stage) if notch is not None else 0
 
     def conservative(self, job: FRTJob) -> FRTSet:
         """The engine's fast set that contains the exact one (boxes only, ~1 ms here: built on
@@ -272,7 +284,7 @@ class Services:
 
 def refine_by_notch_cut(compute: Callable[[], Any], result: Any) -> ExactTask | None:
     """The scheduler's refinement (``FRT_FRT_NOTCH_CUT``): an exact set that could have a notch is
-    cut to the speed-coupled partition once it is ready (``ExactTask.refinement``)."""
+    cut by each stage of the notch cut in turn once it is ready (``ExactTask.refinement``)."""
     return compute.refinement(result) if isinstance(compute, ExactTask) else None
 
 

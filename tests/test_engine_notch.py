@@ -12,7 +12,7 @@ import shapely
 
 from models.eval_settings import SETTINGS
 from models.rollout import sample_reference_schedules
-from service.engine import FRTEngine, Pose
+from service.engine import NOTCH_STAGES, FRTEngine, Pose
 from service.model_runtime import ValueModel
 from tests.fixtures.trajectories import simulate
 
@@ -30,13 +30,15 @@ def _covered(geometry: shapely.Geometry, state: tuple[np.ndarray, ...]) -> np.nd
     return shapely.covers(geometry, shapely.points(np.stack([state[0], state[1]], axis=1)))
 
 
+@pytest.mark.parametrize("stage", range(1, len(NOTCH_STAGES) + 1))
 @pytest.mark.parametrize("name", ["urban_wide", "shrinking_steering_only"])
-def test_the_cut_keeps_every_simulated_position_and_cuts(engines, name: str) -> None:
+def test_the_cut_keeps_every_simulated_position_and_cuts(engines, name: str, stage: int) -> None:
     plain, notched = engines
     setting = NAMED[name]
     bounds = setting.bounds()
     uncut = plain.exact(Pose(0.0, 0.0, 0.0), setting.v_start, bounds)
-    cut = notched.exact(Pose(0.0, 0.0, 0.0), setting.v_start, bounds)
+    cut = notched.exact(Pose(0.0, 0.0, 0.0), setting.v_start, bounds, notch_stage=stage)
+    assert cut.notch is not None and cut.notch.stage == stage
     last = cut.n_slices - 1
     assert cut.tube(last).difference(uncut.tube(last)).area < 1e-6
     assert uncut.tube(last).area - cut.tube(last).area > 50.0  # m²: it cuts the notch

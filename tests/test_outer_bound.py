@@ -8,7 +8,7 @@ import shapely
 
 from models.contract import COL
 from models.eval_settings import SETTINGS
-from models.outer_bound import cos_max_towards, cos_range, outer_bound
+from models.outer_bound import cos_max_towards, cos_range, half_plane_polygons, outer_bound
 from models.rollout import (
     sample_control_schedules,
     sample_reference_schedules,
@@ -37,6 +37,36 @@ def test_cos_max_towards_directions_is_exact_on_dense_samples() -> None:
     assert got.shape == (200, 16)
     np.testing.assert_allclose(got, dense, atol=1e-6)
     assert np.all(got >= dense - 1e-12)  # never below a sampled value: the bound stays outward
+
+
+@pytest.mark.parametrize("n_directions", [16, 32])
+def test_half_plane_polygons_are_the_intersections_of_their_half_planes(n_directions: int) -> None:
+    """Each polygon equals shapely's intersection of its half-planes (each a large box clipped
+    to one side of its line), with redundant constraints (supports raised far beyond the rest)
+    that must cut no corner off, and its vertices run counter-clockwise."""
+    rng = np.random.default_rng(n_directions)
+    directions = np.arange(n_directions) * (2 * np.pi / n_directions)
+    supports = rng.uniform(2.0, 6.0, (40, n_directions)) + rng.normal(0, 3, (40, 1)) * np.cos(
+        directions - rng.uniform(0, 2 * np.pi, (40, 1))
+    )
+    redundant = rng.uniform(size=supports.shape) < 0.2
+    supports = np.where(redundant, supports + rng.uniform(1, 30, supports.shape), supports)
+    polygons = half_plane_polygons(directions, supports)
+    for support, vertices in zip(supports, polygons, strict=True):
+        want = shapely.box(-100, -100, 100, 100)
+        for phi, h in zip(directions, support, strict=True):
+            c, s = np.cos(phi), np.sin(phi)
+            # The half-plane p . (c, s) <= h, as a big rectangle behind its line.
+            base = np.array([h * c, h * s])
+            along, back = np.array([-s, c]) * 300, -np.array([c, s]) * 300
+            want = want.intersection(
+                shapely.Polygon(
+                    [base - along, base + along, base + along + back, base - along + back]
+                )
+            )
+        got = shapely.Polygon(vertices)
+        assert got.is_valid and shapely.Polygon(vertices).exterior.is_ccw
+        assert got.symmetric_difference(want).area < 1e-6 * want.area
 
 
 @pytest.mark.parametrize(

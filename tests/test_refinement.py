@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from models.eval_settings import SETTINGS
-from service.engine import FRTEngine, Pose
+from service.engine import NOTCH_STAGES, FRTEngine, Pose
 from service.exact_worker import ExactTask
 from service.metrics import Metrics
 from service.model_runtime import ValueModel
@@ -63,13 +63,45 @@ def until(condition: Callable[[], bool], timeout_s: float = 5.0) -> bool:
     return condition()
 
 
-def outcomes(scheduler: FRTScheduler) -> dict[str, float]:
-    """The scheduler's ``frt_refinements_total`` by outcome (0 where none)."""
+def outcomes(scheduler: FRTScheduler, stage: int | None = None) -> dict[str, float]:
+    """The scheduler's ``frt_refinements_total`` by outcome (0 where none), of one stage or all."""
     registry = scheduler._metrics.registry
+    stages = [stage] if stage is not None else [1, 2, 3]
     return {
-        outcome: registry.get_sample_value("frt_refinements_total", {"outcome": outcome}) or 0.0
+        outcome: sum(
+            registry.get_sample_value(
+                "frt_refinements_total", {"outcome": outcome, "stage": str(s)}
+            )
+            or 0.0
+            for s in stages
+        )
         for outcome in ("landed", "stale", "dropped", "wasted", "failed")
     }
+
+
+class Stage:
+    """A refinement stage: logs its name when it starts, may wait for a gate, and has a next
+    stage (``refinement`` finds it as ``refined``)."""
+
+    def __init__(
+        self,
+        name: str,
+        stage: int,
+        log: list[str],
+        refined: Callable[[], Any] | None = None,
+        gate: threading.Event | None = None,
+    ) -> None:
+        self.name, self.stage, self.log, self.refined, self.gate = name, stage, log, refined, gate
+
+    def __call__(self) -> str:
+        self.log.append(self.name)
+        if self.gate is not None:
+            self.gate.wait(5)
+        return self.name
+
+
+def staged_refine(compute: Callable[[], Any], result: Any) -> Callable[[], Any] | None:
+    return getattr(compute, "refined", None)
 
 
 def test_a_refined_set_replaces_the_ready_one(scheduler: FRTScheduler) -> None:
@@ -85,6 +117,58 @@ def test_a_refined_set_replaces_the_ready_one(scheduler: FRTScheduler) -> None:
     gate.set()
     assert until(lambda: scheduler.lookup(k) == "refined")
     assert outcomes(scheduler) == {"landed": 1, "stale": 0, "dropped": 0, "wasted": 0, "failed": 0}
+
+
+def test_refinements_come_in_stages_each_landing_in_turn(scheduler: FRTScheduler) -> None:
+    """A landed refinement is asked for its own (``refinement`` of the refined set): the second
+    stage replaces the first, each counted under its stage."""
+    scheduler.refinement = staged_refine
+    log: list[str] = []
+    gate = threading.Event()
+    second = Stage("second cut", 2, log, gate=gate)
+    first = Stage("first cut", 1, log, refined=second)
+    k = key("a", 1)
+    assert asyncio.run(scheduler.wait(k, Refinable("exact", first), 5.0)) == "exact"
+    assert until(lambda: scheduler.lookup(k) == "first cut")  # served while the second runs
+    gate.set()
+    assert until(lambda: scheduler.lookup(k) == "second cut")
+    assert log == ["first cut", "second cut"]
+    assert until(lambda: outcomes(scheduler, stage=2)["landed"] == 1)
+    assert outcomes(scheduler, stage=1)["landed"] == 1
+
+
+def test_first_stages_run_before_later_ones(scheduler: FRTScheduler) -> None:
+    """Agent z's first stage lands while agent a's first stage waits: a's goes before z's second,
+    though z's second was queued last (newest first would run it first)."""
+    scheduler.refinement = staged_refine
+    log: list[str] = []
+    gate = threading.Event()
+    z_first = Stage("z1", 1, log, refined=Stage("z2", 2, log), gate=gate)
+    asyncio.run(scheduler.wait(key("z", 1), Refinable("exact z", z_first), 5.0))
+    assert until(lambda: log == ["z1"])  # holds the one refining worker
+    a_first = Stage("a1", 1, log, refined=Stage("a2", 2, log))
+    asyncio.run(scheduler.wait(key("a", 1), Refinable("exact a", a_first), 5.0))
+    gate.set()
+    assert until(lambda: len(log) == 4)
+    assert log[:2] == ["z1", "a1"]
+    assert until(lambda: scheduler.lookup(key("z", 1)) == "z2")
+    assert until(lambda: scheduler.lookup(key("a", 1)) == "a2")
+
+
+def test_a_later_stage_of_a_superseded_version_is_not_queued(scheduler: FRTScheduler) -> None:
+    """A first stage that lands after its agent's next version came (stale) queues no second
+    stage: nobody asks for that version's set any more."""
+    scheduler.refinement = staged_refine
+    log: list[str] = []
+    gate = threading.Event()
+    first = Stage("a1 first", 1, log, refined=Stage("a1 second", 2, log), gate=gate)
+    asyncio.run(scheduler.wait(key("a", 1), Refinable("exact a1", first), 5.0))
+    assert until(lambda: log == ["a1 first"])
+    asyncio.run(scheduler.wait(key("a", 2), Refinable("exact a2", None), 5.0))
+    gate.set()
+    assert until(lambda: outcomes(scheduler, stage=1)["stale"] == 1)
+    time.sleep(0.1)
+    assert log == ["a1 first"]
 
 
 def test_refinements_leave_a_worker_to_exact_sets(scheduler: FRTScheduler) -> None:
@@ -237,13 +321,20 @@ def test_the_service_refines_sets_that_may_turn_round_by_the_notch_cut(
     uncut = task()
     assert uncut.notch is None and uncut.notch_possible
     follow_up = refine_by_notch_cut(task, uncut)
-    assert isinstance(follow_up, ExactTask) and follow_up.notch_cut
+    assert isinstance(follow_up, ExactTask) and follow_up.notch_cut and follow_up.stage == 1
     cut = follow_up()
     last = cut.n_slices - 1
-    assert cut.notch is not None
+    assert cut.notch is not None and cut.notch.stage == 1
     assert cut.tube(last).difference(uncut.tube(last)).area < 1e-6
     assert uncut.tube(last).area - cut.tube(last).area > 50.0  # m²
-    assert refine_by_notch_cut(follow_up, cut) is None
+    # Then the finer stage, inside the first (up to the rounding of its outward polygons).
+    finer_task = refine_by_notch_cut(follow_up, cut)
+    assert isinstance(finer_task, ExactTask) and finer_task.stage == len(NOTCH_STAGES) == 2
+    finer = finer_task()
+    assert finer.notch is not None and finer.notch.stage == 2
+    assert finer.tube(last).difference(cut.tube(last)).area < 1e-3
+    assert finer.tube(last).area < cut.tube(last).area
+    assert refine_by_notch_cut(finer_task, finer) is None
     plain = ExactTask(Pose(0.0, 0.0, 0.0), narrow.v_start, narrow.bounds(), engine)
     assert refine_by_notch_cut(plain, plain()) is None
     assert refine_by_notch_cut(lambda: None, uncut) is None  # not an exact set's task
@@ -289,12 +380,20 @@ def test_the_service_serves_the_cut_set_once_refined(start_server) -> None:
             ready = http.post("/v1/agents/w/observations?wait_frt_ms=10000", json=body).json()
             assert ready["frt_ready"] and ready["control_bounds"]["u1_max_start"] > 0.9
             first = tube_of(http, "w")
-            state = http.get("/v1/agents/w").json()["frt_refinement"]
-            assert state in (("pending", "done") if refined else ("not_needed",))
+            agent = http.get("/v1/agents/w").json()
+            assert agent["frt_refinement"] in (("pending", "done") if refined else ("not_needed",))
+            assert agent["frt_refinement_stage"] in (range(3) if refined else (0,))
             smaller = first.area - 50.0
             assert until(lambda: tube_of(http, "w").area < smaller, 10.0) == refined  # noqa: B023
-            state = http.get("/v1/agents/w").json()["frt_refinement"]
-            assert state == ("done" if refined else "not_needed")
+            if refined:  # the first stage has landed; "done" once the last has
+                done = until(
+                    lambda: http.get("/v1/agents/w").json()["frt_refinement"] == "done",
+                    15.0,
+                )
+                assert done
+            agent = http.get("/v1/agents/w").json()
+            assert agent["frt_refinement"] == ("done" if refined else "not_needed")
+            assert agent["frt_refinement_stage"] == (len(NOTCH_STAGES) if refined else 0)
             last = tube_of(http, "w")
             assert last.difference(first).area < 1.0  # m²: inside the first (up to rounding)
             areas[refined] = last.area

@@ -82,9 +82,11 @@ class Agent(Response):
     frt_version: int
     frt_ready: bool = False
     #: Once the exact FRT is ready: "pending" while the service tightens it in the background (an
-    #: agent that may turn round), "done" after, "failed" if that raised (the uncut set, which
-    #: contains the cut one, stays), "not_needed" otherwise.
+    #: agent that may turn round; in stages, quick then fine), "done" after the last, "failed" if
+    #: one raised (the set before, which contains the cut one, stays), "not_needed" otherwise.
     frt_refinement: str | None = None
+    #: How many stages of that tightening the served set has had (0: none yet).
+    frt_refinement_stage: int | None = None
     config: EffectiveConfig | None = None
 
 

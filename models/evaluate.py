@@ -73,13 +73,15 @@ SERVED_NOTCH_CUT = bool(Settings.model_fields["frt_notch_cut"].default)
 TUBE_TIMES = (1.0, 2.0, 3.0)
 #: The partition outer reference (``partition_tubes``): 32 final-heading bins, each split into 8 by
 #: the heading at a fifth of the time (waypoint bins), speed programmes on 120 sub-intervals,
-#: instants 0.05 s apart (~6.5 s per setting; without the waypoint bins ~1 s, and the notch's
-#: walls twice as far out on `fast_wide_limits`).
+#: instants 0.05 s apart, each bin's polygon in 32 support directions (~3 s per setting with the
+#: compiled kernels; without the waypoint bins the notch's walls lie twice as far out on
+#: `fast_wide_limits`).
 PARTITION_REFERENCE: dict[str, Any] = {
     "heading_bins": 32,
     "waypoint_bins": 8,
     "steps": 120,
     "instant_s": 0.05,
+    "n_directions": 32,
 }
 #: Issue 3's target for "beyond" (95th percentile, metres): rows over it are counted.
 BEYOND_TARGET_M = 1.5
@@ -219,6 +221,14 @@ def without_network(engine: FRTEngine) -> FRTEngine:
     return bare
 
 
+def partition_reference_arguments() -> dict[str, Any]:
+    """PARTITION_REFERENCE as ``partition_tubes``' arguments (the directions as angles)."""
+    arguments = dict(PARTITION_REFERENCE)
+    n_directions = arguments.pop("n_directions")
+    arguments["directions"] = np.arange(n_directions) * (2 * math.pi / n_directions)
+    return arguments
+
+
 def evaluate_setting(
     model: ValueModel,
     engine: FRTEngine,
@@ -246,7 +256,11 @@ def evaluate_setting(
     )
     ob = engine.outer(setting.v_start, bounds)
     proven = partition_tubes(
-        setting.v_start, bounds, TUBE_TIMES, float(ob.sweep_speed_max.max()), **PARTITION_REFERENCE
+        setting.v_start,
+        bounds,
+        TUBE_TIMES,
+        float(ob.sweep_speed_max.max()),
+        **partition_reference_arguments(),
     )
     rows = []
     artefacts: dict[str, Any] = {"frt": frt, "rollouts": roll, "outer": ob}

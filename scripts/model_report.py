@@ -134,7 +134,8 @@ def _partition(acc: dict) -> list[str]:
     )
     return [
         f"The partition reference: {ref['heading_bins']} final-heading bins{split}, speed "
-        f"programmes on {ref['steps']} sub-intervals, instants {ref['instant_s']} s apart, each "
+        f"programmes on {ref['steps']} sub-intervals, polygons in {ref.get('n_directions', 16)} "
+        f"support directions, instants {ref['instant_s']} s apart, each "
         "bin swept along its headings to the instants' midpoints (the last instant of a tube "
         "backwards in time only).",
         "",

@@ -12,10 +12,10 @@ it with httpx from this process. Prints medians and p99 for:
    ``?wait_frt_ms=``);
    and the same through one request for an agent whose predictor is unsure of the steering (its
    steering bounds near +-1 rad/s: it may turn round, so with ``FRT_FRT_NOTCH_CUT``, the default,
-   the service refines its sets in the background), and from the observation until that
-   refinement's first stage is served (``frt_refinement_stage: 1``) and until its last is
-   (``frt_refinement: done``), polled every 2 ms; the bench passes the caller's ``FRT_*``
-   environment to the service;
+   the service refines its sets in the background, in stages), and from the observation until that
+   refinement's first stage is served (``frt_refinement_stage: 1``), and, observed 1.5 s apart
+   (the fine stage is skipped when it would land after the next observation), until its last is;
+   polled every 2 ms; the bench passes the caller's ``FRT_*`` environment to the service;
 3. contours for one agent (tube + 3 slices), on a fresh FRT version each time;
 4. sustained: 50 agents observed at 2 Hz while a planner (a process of its own) checks all of
    them at 10 Hz with one multi-agent request per round; a round misses its deadline when its
@@ -171,6 +171,11 @@ def bench_http_floor(client: httpx.Client, n: int) -> dict:
     return stats(times)
 
 
+#: How far apart the bench observes the wide agent while it times the refinement's last stage: a
+#: version that lives this long gets it (``FRTScheduler._lands_in_time``).
+FINE_PERIOD_S = 1.5
+
+
 def observe_until_ready(client: httpx.Client, agent: str, body: dict) -> float:
     """Seconds from sending an observation with ``?wait_frt_ms=`` (answered once its version's
     exact set is computed) to the exact set being ready."""
@@ -208,36 +213,50 @@ def bench_observe_to_ready(client: httpx.Client, n: int) -> dict[str, dict]:
     }
 
 
-def bench_observe_to_ready_wide(client: httpx.Client, n: int) -> dict[str, dict]:
+def bench_observe_to_ready_wide(client: httpx.Client, n: int, n_fine: int = 15) -> dict[str, dict]:
     """The same through one request for an agent whose predictor is unsure of the steering
     (WIDE_STEERING_VAR): its sets may turn round, so the service also refines them in the
-    background (FRT_FRT_NOTCH_CUT); then, polling ``GET /v1/agents/{id}`` every 2 ms, until its
-    first stage is served (``frt_refinement_stage``) and until its last is (``frt_refinement:
-    done``)."""
+    background (FRT_FRT_NOTCH_CUT), in stages. Then, polling ``GET /v1/agents/{id}`` every 2 ms,
+    until the first stage is served (``frt_refinement_stage``: what a planner gets at any
+    observation rate), ``n`` times back to back; and ``n_fine`` times, observed FINE_PERIOD_S
+    apart (the fine stage is skipped when it would land after the agent's next observation), until
+    the last stage is (``frt_refinement: done`` at the last stage)."""
+    from service.engine import NOTCH_STAGES
+
     rng = np.random.default_rng(2)
     wide = WIDE_STEERING_VAR
     client.post("/v1/agents/bench-wide/observations", json=observation(0.0, rng, True, 0.0, wide))
-    ready, first, refined = [], [], []
-    for i in range(1, n + 1):
-        t0 = time.perf_counter()
-        body = observation(float(i), rng, False, 0.0, wide)
-        ready.append(observe_until_ready(client, "bench-wide", body))
-        first_seen = False
+
+    def refined_until(stage: int, t0: float) -> float | None:
+        """Seconds from ``t0`` until the agent's set has had ``stage`` stages (None if its
+        refinement ends before)."""
         while True:
             agent = client.get("/v1/agents/bench-wide").json()
-            if not first_seen and (agent.get("frt_refinement_stage") or 0) >= 1:
-                first.append(time.perf_counter() - t0)
-                first_seen = True
+            if (agent.get("frt_refinement_stage") or 0) >= stage:
+                return time.perf_counter() - t0
             if agent["frt_refinement"] != "pending":
-                break
+                return None
             time.sleep(0.002)
-        if agent["frt_refinement"] == "done":
-            refined.append(time.perf_counter() - t0)
+
+    ready, first, fine = [], [], []
+    t0 = time.perf_counter()
+    for i in range(1, n + n_fine + 1):
+        if i > n:
+            time.sleep(max(FINE_PERIOD_S - (time.perf_counter() - t0), 0.0))
+        t0 = time.perf_counter()
+        body = observation(float(i), rng, False, 0.0, wide)
+        seconds = observe_until_ready(client, "bench-wide", body)
+        if i <= n:
+            ready.append(seconds)
+            if (took := refined_until(1, t0)) is not None:
+                first.append(took)
+        elif (took := refined_until(len(NOTCH_STAGES), t0)) is not None:
+            fine.append(took)
     out = {"observation_to_frt_ready_wide_steering": stats(ready)}
     if first:
         out["observation_to_frt_first_cut_wide_steering"] = stats(first)
-    if refined:
-        out["observation_to_frt_refined_wide_steering"] = stats(refined)
+    if fine:
+        out["observation_to_frt_refined_wide_steering"] = stats(fine)
     return out
 
 

@@ -26,7 +26,7 @@ sys.path.insert(0, str(ROOT / "scripts"))
 
 from bench import WIDE_STEERING_VAR, observation, running_service  # noqa: E402
 
-OUTCOMES = ("landed", "stale", "dropped", "wasted", "failed")
+OUTCOMES = ("landed", "stale", "dropped", "wasted", "failed", "skipped")
 
 
 async def observe(url: str, agents: int, hz: float, seconds: float) -> None:

@@ -50,8 +50,10 @@ class Metrics:
             "Background refinements of exact sets (the notch cut), by outcome: landed (it replaced "
             "the agent's current set), stale (it replaced its set, but a later version had come: "
             "checks no longer ask for it), dropped (its version superseded or its agent forgotten "
-            "before it ran), wasted (it ran, but its set had left the cache) or failed (it "
-            "raised); and by stage (1 for a set's first refinement, 2 for the next)",
+            "before it ran), wasted (it ran, but its set had left the cache), failed (it "
+            "raised) or skipped (a later stage not started: it would have landed after the "
+            "agent's next version came); and by stage (1 for a set's first refinement, 2 for the "
+            "next)",
             ["outcome", "stage"],
             registry=r,
         )

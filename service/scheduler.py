@@ -20,6 +20,7 @@ import asyncio
 import functools
 import hashlib
 import logging
+import math
 import struct
 import threading
 import time
@@ -182,8 +183,15 @@ class FRTScheduler:
         self._refine_queue: _RefineQueue = OrderedDict()
         self._refine_later: _RefineQueue = OrderedDict()
         self._refining: set[FRTKey] = set()
+        #: Per agent, when its last two versions were submitted (as many agents as the cache holds
+        #: sets), and per refinement stage how long one takes (moving average): whether a later
+        #: stage would land before the agent's next version (``_lands_in_time``).
+        self._version_times: OrderedDict[str, tuple[int, float, float]] = OrderedDict()
+        self._refine_typical_s: dict[int, float] = {}
         #: Keys whose refinement raised, newest last (as many as the cache holds sets).
         self._refine_failed: OrderedDict[FRTKey, None] = OrderedDict()
+        #: Keys whose later refinement stage was skipped (``_lands_in_time``), likewise.
+        self._refine_skipped: OrderedDict[FRTKey, None] = OrderedDict()
         self._lock = threading.RLock()  # done-callbacks may run inline in submit()
 
     @property
@@ -256,8 +264,38 @@ class FRTScheduler:
                     self._pending.pop(older).future.cancel()
             self._pending[key] = _Job(compute, future)
             self._queue[slot] = key  # an existing slot keeps its place
+            if key.agent_id:
+                self._note_version(key)
         self._dispatch()
         return future
+
+    def _note_version(self, key: FRTKey) -> None:
+        """Remember when ``key``'s agent's latest versions came (called with the lock held)."""
+        now = time.perf_counter()
+        known = self._version_times.get(key.agent_id)
+        if known is None:
+            self._version_times[key.agent_id] = (key.version, -math.inf, now)
+        elif key.version > known[0]:
+            self._version_times[key.agent_id] = (key.version, known[2], now)
+        self._version_times.move_to_end(key.agent_id)
+        while len(self._version_times) > self._cache_size:
+            self._version_times.popitem(last=False)
+
+    def _lands_in_time(self, key: FRTKey, compute: Callable[[], Any]) -> bool:
+        """Whether a later stage's refinement of ``key`` is expected to land while ``key`` is its
+        agent's current version (called with the lock held): if the agent's next version comes as
+        long after this one as this one came after the one before, and the stage takes as long as
+        it has (moving average). A later stage is slow; one that would be stale on landing would
+        only hold the refining worker from the next version's first stage."""
+        known = self._version_times.get(key.agent_id) if key.agent_id else None
+        typical = self._refine_typical_s.get(getattr(compute, "stage", 1))
+        if known is not None and known[0] > key.version:
+            return False  # superseded already
+        if known is None or typical is None:
+            return True
+        _, previous, latest = known
+        interval = latest - previous
+        return time.perf_counter() - latest + typical < interval
 
     async def wait(self, key: FRTKey, compute: Callable[[], Any], timeout_s: float) -> Any | None:
         """The exact set for ``key`` if it is (or becomes) ready within ``timeout_s``, else ``None``.
@@ -381,6 +419,10 @@ class FRTScheduler:
             if key not in self._cache:
                 self._count_refinement("dropped", compute)
                 continue
+            if queue is self._refine_later and not self._lands_in_time(key, compute):
+                self._count_refinement("skipped", compute)
+                self._remember(self._refine_skipped, key)
+                continue
             self._refining.add(key)
             try:
                 handle = executor.submit(timed, compute)
@@ -419,6 +461,19 @@ class FRTScheduler:
         with self._lock:
             return key in self._refine_failed
 
+    def refinement_skipped(self, key: FRTKey) -> bool:
+        """Whether a later stage of ``key``'s refinement was skipped (``_lands_in_time``): its
+        set stays as the stage before left it."""
+        with self._lock:
+            return key in self._refine_skipped
+
+    def _remember(self, keys: OrderedDict[FRTKey, None], key: FRTKey) -> None:
+        """Add ``key`` to ``keys``, which hold as many as the cache holds sets (called with the
+        lock held)."""
+        keys[key] = None
+        while len(keys) > self._cache_size:
+            keys.popitem(last=False)
+
     def _queue_refinement(
         self, key: FRTKey, compute: Callable[[], Any], result: Any, later: bool = False
     ) -> None:
@@ -450,13 +505,14 @@ class FRTScheduler:
                 if landed:
                     outcome = "stale" if self._superseded(key) else "landed"
                     self._metrics.frt_compute_seconds.labels("refined").observe(handle.result()[1])
+                stage = getattr(compute, "stage", 1)
+                typical = self._refine_typical_s.get(stage, handle.result()[1])
+                self._refine_typical_s[stage] = typical + 0.2 * (handle.result()[1] - typical)
                 self._count_refinement(outcome, compute)
                 follow = outcome == "landed"
             elif not discard and not isinstance(error, CancelledError):
                 self._count_refinement("failed", compute)
-                self._refine_failed[key] = None
-                while len(self._refine_failed) > self._cache_size:
-                    self._refine_failed.popitem(last=False)
+                self._remember(self._refine_failed, key)
         if error is not None and not isinstance(error, CancelledError | BrokenExecutor):
             log.error(
                 "FRT refinement failed",

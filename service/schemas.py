@@ -206,9 +206,10 @@ class AgentResponse(Response):
         None,
         description="once the exact FRT is ready: whether it is being tightened in the background "
         "(an agent that may turn round: its set cut to the speed-coupled partition, "
-        "FRT_FRT_NOTCH_CUT, in stages, quick then fine), and whether that is done (its last "
-        "stage served), or failed (the served set then stays the one before, which contains the "
-        "cut one); null before",
+        "FRT_FRT_NOTCH_CUT, in stages, quick then fine), and whether that is done (no stage to "
+        "come: the last served, or the fine one skipped because it would have landed after the "
+        "agent's next observation; frt_refinement_stage says which), or failed (the served set "
+        "then stays the one before, which contains the cut one); null before",
     )
     frt_refinement_stage: int | None = Field(
         None,

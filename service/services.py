@@ -235,14 +235,17 @@ class Services:
         return ExactTask(job.pose, job.v_start, job.bounds, self.require_engine())
 
     def refinement_state(self, exact: FRTSet | None, key: FRTKey) -> str | None:
-        """Of the ready exact set of ``key``: "done" if it is cut by the notch cut's last stage,
-        "failed" if a refinement raised (the set stays the one before, which contains the cut
-        one), "pending" if a stage is due (``FRT_FRT_NOTCH_CUT`` and a set that may turn round;
-        the first stage may have landed already), else "not_needed"; None if no set."""
+        """Of the ready exact set of ``key``: "done" if it is cut by the notch cut's last stage, or
+        by an earlier one whose next was skipped (it would have landed after the agent's next
+        observation: ``frt_refinement_stage`` says which), "failed" if a refinement raised (the
+        set stays the one before, which contains the cut one), "pending" if a stage is due
+        (``FRT_FRT_NOTCH_CUT`` and a set that may turn round; the first stage may have landed
+        already), else "not_needed"; None if no set."""
         if exact is None:
             return None
         notch = getattr(exact, "notch", None)
-        if notch is not None and notch.stage >= len(NOTCH_STAGES):
+        last = notch is not None and notch.stage >= len(NOTCH_STAGES)
+        if last or (notch is not None and self.scheduler.refinement_skipped(key)):
             return "done"
         if self.scheduler.refinement_failed(key):
             return "failed"

@@ -75,7 +75,7 @@ def outcomes(scheduler: FRTScheduler, stage: int | None = None) -> dict[str, flo
             or 0.0
             for s in stages
         )
-        for outcome in ("landed", "stale", "dropped", "wasted", "failed")
+        for outcome in ("landed", "stale", "dropped", "wasted", "failed", "skipped")
     }
 
 
@@ -90,13 +90,16 @@ class Stage:
         log: list[str],
         refined: Callable[[], Any] | None = None,
         gate: threading.Event | None = None,
+        seconds: float = 0.0,
     ) -> None:
         self.name, self.stage, self.log, self.refined, self.gate = name, stage, log, refined, gate
+        self.seconds = seconds
 
     def __call__(self) -> str:
         self.log.append(self.name)
         if self.gate is not None:
             self.gate.wait(5)
+        time.sleep(self.seconds)
         return self.name
 
 
@@ -116,7 +119,14 @@ def test_a_refined_set_replaces_the_ready_one(scheduler: FRTScheduler) -> None:
     assert first == "exact" and scheduler.lookup(k) == "exact"  # ready before the refinement
     gate.set()
     assert until(lambda: scheduler.lookup(k) == "refined")
-    assert outcomes(scheduler) == {"landed": 1, "stale": 0, "dropped": 0, "wasted": 0, "failed": 0}
+    assert outcomes(scheduler) == {
+        "landed": 1,
+        "stale": 0,
+        "dropped": 0,
+        "wasted": 0,
+        "failed": 0,
+        "skipped": 0,
+    }
 
 
 def test_refinements_come_in_stages_each_landing_in_turn(scheduler: FRTScheduler) -> None:
@@ -169,6 +179,37 @@ def test_a_later_stage_of_a_superseded_version_is_not_queued(scheduler: FRTSched
     assert until(lambda: outcomes(scheduler, stage=1)["stale"] == 1)
     time.sleep(0.1)
     assert log == ["a1 first"]
+
+
+def test_a_later_stage_that_would_land_after_the_next_version_is_skipped(
+    scheduler: FRTScheduler,
+) -> None:
+    """Once a second stage is known to take ~0.2 s, an agent whose versions come 0.02 s apart
+    does not start one (``skipped``): it would land stale and hold the refining worker from the
+    next version's first stage. One whose versions come 0.6 s apart does."""
+    scheduler.refinement = staged_refine
+    log: list[str] = []
+
+    def staged(name: str) -> Refinable:
+        return Refinable(
+            f"exact {name}",
+            Stage(f"{name} first", 1, log, refined=Stage(f"{name} second", 2, log, seconds=0.2)),
+        )
+
+    asyncio.run(scheduler.wait(key("z", 1), staged("z1"), 5.0))  # learns the second's duration
+    assert until(lambda: scheduler.lookup(key("z", 1)) == "z1 second")
+    for agent, apart_s in (("often", 0.02), ("rarely", 0.6)):
+        asyncio.run(scheduler.wait(key(agent, 1), Refinable(f"exact {agent}1", None), 5.0))
+        time.sleep(apart_s)
+        asyncio.run(scheduler.wait(key(agent, 2), staged(f"{agent}2"), 5.0))
+    assert until(lambda: scheduler.lookup(key("rarely", 2)) == "rarely2 second")
+    assert scheduler.lookup(key("often", 2)) == "often2 first"
+    assert "often2 second" not in log
+    # Said so (frt_refinement "done" at the first stage), and only of that key.
+    assert scheduler.refinement_skipped(key("often", 2))
+    assert not scheduler.refinement_skipped(key("rarely", 2))
+    assert outcomes(scheduler, stage=2)["skipped"] == 1
+    assert outcomes(scheduler, stage=2)["landed"] == 2  # z's and the rarely observed agent's
 
 
 def test_refinements_leave_a_worker_to_exact_sets(scheduler: FRTScheduler) -> None:

@@ -82,8 +82,9 @@ class Agent(Response):
     frt_version: int
     frt_ready: bool = False
     #: Once the exact FRT is ready: "pending" while the service tightens it in the background (an
-    #: agent that may turn round; in stages, quick then fine), "done" after the last, "failed" if
-    #: one raised (the set before, which contains the cut one, stays), "not_needed" otherwise.
+    #: agent that may turn round; in stages, quick then fine), "done" when no stage is to come
+    #: (the fine one is skipped if it would land after the agent's next observation), "failed"
+    #: if one raised (the set before, which contains the cut one, stays), "not_needed" otherwise.
     frt_refinement: str | None = None
     #: How many stages of that tightening the served set has had (0: none yet).
     frt_refinement_stage: int | None = None

@@ -135,7 +135,7 @@ class Services:
             path, engine
         )
         if self.settings.frt_notch_cut and on_processes:
-            # Not on threads: ~0.2 s of work per refinement would hold the event loop's GIL.
+            # Not on threads: 0.1-1 s of work per refinement would hold the event loop's GIL.
             self.scheduler.refinement = refine_by_notch_cut
         self.engine = engine
         self.model_name = model.card.name

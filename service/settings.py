@@ -55,9 +55,10 @@ class Settings(BaseSettings):
     frt_worker_nice: int = Field(19, ge=0, le=19)
     #: Refine exact sets whose heading interval passes +-pi/2 (the car may turn round): once the
     #: uncut set is ready (observation -> ready unchanged), a worker with nothing else to do cuts
-    #: it to the speed-coupled partition (``service.engine.NotchCut``) and the cut set replaces it.
-    #: Tighter, still sound sets behind such cars for ~0.2 s of a worker's spare time. Only with
-    #: worker processes (``frt_executor``): on threads it would hold the event loop's GIL.
+    #: it to the speed-coupled partition (``service.engine.NotchCut``) and the cut set replaces it,
+    #: in two stages (``NOTCH_STAGES``: ~0.1 s, then ~1 s if the version should still be current).
+    #: Tighter, still sound sets behind such cars for a worker's spare time. Only with worker
+    #: processes (``frt_executor``): on threads it would hold the event loop's GIL.
     frt_notch_cut: bool = True
     #: Exact FRTs kept in memory, keyed by (agent, FRT version, inputs): at most the two latest
     #: versions of each agent (``service.scheduler.VERSIONS_PER_AGENT``); least recently used go first.

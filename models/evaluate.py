@@ -71,14 +71,14 @@ from service.settings import Settings
 SERVED_NOTCH_CUT = bool(Settings.model_fields["frt_notch_cut"].default)
 
 TUBE_TIMES = (1.0, 2.0, 3.0)
-#: The partition outer reference (``partition_tubes``): 32 final-heading bins, each split into 8 by
-#: the heading at a fifth of the time (waypoint bins), speed programmes on 120 sub-intervals,
-#: instants 0.05 s apart, each bin's polygon in 32 support directions (~3 s per setting with the
-#: compiled kernels; without the waypoint bins the notch's walls lie twice as far out on
-#: `fast_wide_limits`).
+#: The partition outer reference (``partition_tubes``): 32 final-heading bins, each split into 8
+#: by the heading at a fifth of the time and each of those into 2 by the heading at half of it
+#: (waypoint bins, each over the interval its bin leaves), speed programmes on 120 sub-intervals,
+#: instants 0.05 s apart, each bin's polygon in 32 support directions (~6 s per setting).
 PARTITION_REFERENCE: dict[str, Any] = {
     "heading_bins": 32,
-    "waypoint_bins": 8,
+    "waypoint_bins": [8, 2],
+    "waypoint_at": [WAYPOINT_AT, 0.5],
     "steps": 120,
     "instant_s": 0.05,
     "n_directions": 32,
@@ -572,7 +572,7 @@ def main() -> None:
             "on": args.notch_cut,
             "stages": [dataclasses.asdict(stage) for stage in NOTCH_STAGES],
         },
-        "partition_reference": {**PARTITION_REFERENCE, "waypoint_at": WAYPOINT_AT},
+        "partition_reference": PARTITION_REFERENCE,
         "summary": summary,
         "rows": rows,
     }

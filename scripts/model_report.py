@@ -125,21 +125,28 @@ def _partition(acc: dict) -> list[str]:
     ref = acc.get("partition_reference")
     if not ref:
         return []
-    waypoints = ref.get("waypoint_bins", 1)
-    split = (
-        f", each split into {waypoints} by the heading at {ref.get('waypoint_at', '?')} of the "
-        "time (waypoint bins)"
-        if waypoints > 1
-        else ""
-    )
     return [
-        f"The partition reference: {ref['heading_bins']} final-heading bins{split}, speed "
-        f"programmes on {ref['steps']} sub-intervals, polygons in {ref.get('n_directions', 16)} "
-        f"support directions, instants {ref['instant_s']} s apart, each "
-        "bin swept along its headings to the instants' midpoints (the last instant of a tube "
+        f"The partition reference: {ref['heading_bins']} final-heading bins{_waypoints(ref)}, "
+        f"speed programmes on {ref['steps']} sub-intervals, polygons in "
+        f"{ref.get('n_directions', 16)} support directions, instants {ref['instant_s']} s apart, "
+        "each bin swept along its headings to the instants' midpoints (the last instant of a tube "
         "backwards in time only).",
         "",
     ]
+
+
+def _waypoints(partition: dict) -> str:
+    """How a partition's bins are split by waypoint headings, in words ("" if they are not)."""
+    counts = partition.get("waypoint_bins") or []
+    counts = [counts] if isinstance(counts, int) else list(counts)
+    fractions = partition.get("waypoint_at") or []
+    fractions = [fractions] if isinstance(fractions, int | float) else list(fractions)
+    splits = [
+        f"{count} by the heading at {fraction} of the time"
+        for count, fraction in zip(counts, fractions, strict=False)
+        if count > 1
+    ]
+    return (", each split into " + ", then ".join(splits) + " (waypoint bins)") if splits else ""
 
 
 def _served(acc: dict) -> list[str]:
@@ -152,12 +159,10 @@ def _served(acc: dict) -> list[str]:
     ]
 
     def partition(stage: dict) -> str:
-        waypoints = stage.get("waypoint_bins", 1)
-        split = f" x {waypoints} waypoint bins" if waypoints > 1 else ""
         directions = stage.get("n_directions", 16)
         return (
-            f"{stage['heading_bins']} heading bins{split}, speed programmes on {stage['steps']} "
-            f"sub-intervals, polygons in {directions} directions"
+            f"{stage['heading_bins']} heading bins{_waypoints(stage)}, speed programmes on "
+            f"{stage['steps']} sub-intervals, polygons in {directions} directions"
         )
 
     described = "; then ".join(partition(stage) for stage in stages)

@@ -39,6 +39,7 @@ from shapely.geometry.polygon import orient
 
 from models.contract import BOUND_COLUMNS, COL, N_INPUTS
 from models.corridor_bound import (
+    WAYPOINT_AT,
     bin_headings,
     bins_union,
     grown_to_hold,
@@ -82,11 +83,13 @@ NOTCH_HEADING = math.pi / 2
 @dataclass(frozen=True)
 class NotchPartition:
     """How finely one stage of the notch cut partitions the trajectories: final-heading bins,
-    waypoint heading bins in each, sub-intervals of its speed programmes, and support directions
-    of its bins' polygons (evenly spaced)."""
+    waypoint heading bins in each (a count per waypoint, at those fractions of the time;
+    ``partition_supports``), sub-intervals of its speed programmes, and support directions of its
+    bins' polygons (evenly spaced)."""
 
     heading_bins: int
-    waypoint_bins: int
+    waypoint_bins: tuple[int, ...]
+    waypoint_at: tuple[float, ...]
     steps: int
     n_directions: int
 
@@ -96,14 +99,19 @@ class NotchPartition:
 
 
 #: The notch cut's stages, coarse to fine: the service refines a set by each in turn, each landing
-#: as soon as it is done, so a planner gets the quick cut within ~0.15 s of an observation and the
-#: fine one within ~1 s if no newer observation has come (in-process, ``make bench``). Measured by
-#: the evaluation's notch settings (``make evaluate-full``, docs/model.md): the fine stage's waypoint
-#: bins pin the heading early, where the notch's walls are made, and its 32 directions fit each
-#: bin's polygon closer.
+#: as soon as it is done, so a planner gets the quick cut ~0.1 s after an observation and the fine
+#: one ~1.3 s after it if no newer observation has come first (``make bench``; a later stage is
+#: skipped when it would land after the next observation). The fine stage's waypoint bins pin
+#: the heading at a fifth and at half of the time (each split over the interval its bin leaves),
+#: where the notch's walls are made, and its 32 directions fit each bin's polygon closer: on the
+#: four settings with rows over 1.5 m (one-off runs of the evaluation with ``--only``), 4 x 2
+#: waypoint bins left none over (at most 1.37 m), 8 x 2 none (1.06 m) for twice the time, 8 bins
+#: split over the whole forward interval at a fifth of the time one (1.68 m); docs/model.md.
 NOTCH_STAGES = (
-    NotchPartition(heading_bins=32, waypoint_bins=1, steps=90, n_directions=16),
-    NotchPartition(heading_bins=32, waypoint_bins=8, steps=90, n_directions=32),
+    NotchPartition(32, waypoint_bins=(), waypoint_at=(), steps=90, n_directions=16),
+    NotchPartition(
+        32, waypoint_bins=(4, 2), waypoint_at=(WAYPOINT_AT, 0.5), steps=90, n_directions=32
+    ),
 )
 
 
@@ -1075,13 +1083,14 @@ class FRTEngine:
             steps=partition.steps,
             coupled_speed=True,
             directions=directions,
-            waypoint_bins=partition.waypoint_bins,
+            waypoint_bins=partition.waypoint_bins or 1,
+            waypoint_at=partition.waypoint_at or WAYPOINT_AT,
         )
         headings = bin_headings(
             bounds,
             ob.times[rows][cut],
             partition.heading_bins,
-            partition.waypoint_bins,
+            partition.waypoint_bins or 1,
             horizon=self.horizon,
         )
         # The fastest speed of the sweeps within half an instant of each instant.

@@ -143,8 +143,8 @@ def test_speed_coupled_polygons_hold_every_simulated_position(seed: int) -> None
 
 @pytest.mark.parametrize("seed", [0, 1])
 def test_waypoint_bins_hold_every_simulated_position_and_cut_the_notch_walls(seed: int) -> None:
-    """Bins split again by the heading at a waypoint early in [0, t] (``waypoint_bins``): the union
-    of a time's polygons still contains the position of every trajectory at that time (wide,
+    """Bins split again by the heading at a waypoint early in [0, t] (``waypoint_bins``; two
+    waypoints in turn for seed 1): the union of a time's polygons still contains the position of every trajectory at that time (wide,
     shrinking, fast and random settings; switching and extremal schedules, edge starts), and at
     3 s it is smaller than without the split where steering bounds shrink from wide."""
     from models.corridor_bound import DIRECTIONS, bins_union, partition_supports
@@ -157,7 +157,16 @@ def test_waypoint_bins_hold_every_simulated_position_and_cut_the_notch_walls(see
         rng,
         slice(34, None, 40),
         lambda v_start, bounds, times: partition_supports(
-            v_start, bounds, times, 8, 1, steps=30, coupled_speed=True, waypoint_bins=6
+            v_start,
+            bounds,
+            times,
+            8,
+            1,
+            steps=30,
+            coupled_speed=True,
+            # one waypoint, or two in turn (each splitting the interval its bin leaves)
+            waypoint_bins=(6, (4, 3))[seed],
+            waypoint_at=(0.2, (0.2, 0.5))[seed],
         ),
     )
     named = {s.name: s for s in SETTINGS}
@@ -193,8 +202,18 @@ def test_partition_tubes_hold_every_simulated_position_up_to_their_time() -> Non
         speed_max = float(outer_bound(v_start, bounds).sweep_speed_max.max())
         variants = (
             partition_tubes(v_start, bounds, t_ends, speed_max),
-            # heading waypoint bins
+            # heading waypoint bins, one waypoint and two
             partition_tubes(v_start, bounds, t_ends, speed_max, 8, steps=20, waypoint_bins=4),
+            partition_tubes(
+                v_start,
+                bounds,
+                t_ends,
+                speed_max,
+                8,
+                steps=20,
+                waypoint_bins=(3, 2),
+                waypoint_at=(0.2, 0.5),
+            ),
             # the cheap variant: fewer bins and sub-intervals, convex polygons up to 1.5 s
             partition_tubes(
                 v_start, bounds, t_ends, speed_max, 8, steps=20, partitioned_from_s=1.5

@@ -368,14 +368,18 @@ def test_the_service_refines_sets_that_may_turn_round_by_the_notch_cut(
     assert cut.notch is not None and cut.notch.stage == 1
     assert cut.tube(last).difference(uncut.tube(last)).area < 1e-6
     assert uncut.tube(last).area - cut.tube(last).area > 50.0  # m²
-    # Then the finer stage, inside the first (up to the rounding of its outward polygons).
-    finer_task = refine_by_notch_cut(follow_up, cut)
-    assert isinstance(finer_task, ExactTask) and finer_task.stage == len(NOTCH_STAGES) == 2
-    finer = finer_task()
-    assert finer.notch is not None and finer.notch.stage == 2
-    assert finer.tube(last).difference(cut.tube(last)).area < 1e-3
-    assert finer.tube(last).area < cut.tube(last).area
-    assert refine_by_notch_cut(finer_task, finer) is None
+    # Then each finer stage in turn, inside the one before (up to the rounding of its outward
+    # polygons) and smaller, until the last, which has none.
+    task, coarser = follow_up, cut
+    for stage in range(2, len(NOTCH_STAGES) + 1):
+        task = refine_by_notch_cut(task, coarser)
+        assert isinstance(task, ExactTask) and task.stage == stage
+        finer = task()
+        assert finer.notch is not None and finer.notch.stage == stage
+        assert finer.tube(last).difference(coarser.tube(last)).area < 1e-3
+        assert finer.tube(last).area < coarser.tube(last).area
+        coarser = finer
+    assert refine_by_notch_cut(task, coarser) is None
     plain = ExactTask(Pose(0.0, 0.0, 0.0), narrow.v_start, narrow.bounds(), engine)
     assert refine_by_notch_cut(plain, plain()) is None
     assert refine_by_notch_cut(lambda: None, uncut) is None  # not an exact set's task
@@ -423,13 +427,15 @@ def test_the_service_serves_the_cut_set_once_refined(start_server) -> None:
             first = tube_of(http, "w")
             agent = http.get("/v1/agents/w").json()
             assert agent["frt_refinement"] in (("pending", "done") if refined else ("not_needed",))
-            assert agent["frt_refinement_stage"] in (range(3) if refined else (0,))
+            assert agent["frt_refinement_stage"] in (
+                range(len(NOTCH_STAGES) + 1) if refined else (0,)
+            )
             smaller = first.area - 50.0
             assert until(lambda: tube_of(http, "w").area < smaller, 10.0) == refined  # noqa: B023
             if refined:  # the first stage has landed; "done" once the last has
                 done = until(
                     lambda: http.get("/v1/agents/w").json()["frt_refinement"] == "done",
-                    15.0,
+                    30.0,
                 )
                 assert done
             agent = http.get("/v1/agents/w").json()

@@ -105,7 +105,7 @@ class NotchPartition:
 #: the heading at a fifth and at half of the time (each split over the interval its bin leaves),
 #: where the notch's walls are made, and its 32 directions fit each bin's polygon closer: on the
 #: four settings with rows over 1.5 m (one-off runs of the evaluation with ``--only``), 4 x 2
-#: waypoint bins left none over (at most 1.37 m), 8 x 2 none (1.06 m) for twice the time, 8 bins
+#: waypoint bins left none over (at most 1.37 m), 8 x 2 none (1.25 m) for twice the time, 8 bins
 #: split over the whole forward interval at a fifth of the time one (1.68 m); docs/model.md.
 NOTCH_STAGES = (
     NotchPartition(32, waypoint_bins=(), waypoint_at=(), steps=90, n_directions=16),

@@ -3,6 +3,8 @@ where the interval outer bound is (the notch behind a car)."""
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 import shapely
@@ -200,35 +202,18 @@ def test_partition_tubes_hold_every_simulated_position_up_to_their_time() -> Non
     t_ends = (1.0, 3.0)
     for v_start, bounds in settings:
         speed_max = float(outer_bound(v_start, bounds).sweep_speed_max.max())
+        coarse = functools.partial(
+            partition_tubes, v_start, bounds, t_ends, speed_max, 8, steps=20
+        )  # 8 heading bins, 20 sub-intervals, and:
         variants = (
             partition_tubes(v_start, bounds, t_ends, speed_max),
             # heading waypoint bins, one waypoint and two
-            partition_tubes(v_start, bounds, t_ends, speed_max, 8, steps=20, waypoint_bins=4),
-            partition_tubes(
-                v_start,
-                bounds,
-                t_ends,
-                speed_max,
-                8,
-                steps=20,
-                waypoint_bins=(3, 2),
-                waypoint_at=(0.2, 0.5),
-            ),
-            # the cheap variant: fewer bins and sub-intervals, convex polygons up to 1.5 s
-            partition_tubes(
-                v_start, bounds, t_ends, speed_max, 8, steps=20, partitioned_from_s=1.5
-            ),
+            coarse(waypoint_bins=4),
+            coarse(waypoint_bins=(3, 2), waypoint_at=(0.2, 0.5)),
+            # the cheap variant: convex polygons up to 1.5 s
+            coarse(partitioned_from_s=1.5),
             # finer: 24 directions, instants 0.05 s apart
-            partition_tubes(
-                v_start,
-                bounds,
-                t_ends,
-                speed_max,
-                8,
-                steps=20,
-                instant_s=0.05,
-                directions=np.arange(24) * (2 * np.pi / 24),
-            ),
+            coarse(instant_s=0.05, directions=np.arange(24) * (2 * np.pi / 24)),
         )
         _, trace = simulate(v_start, bounds, 1000, rng, sample_reference_schedules)
         for tau, state in trace[::3]:

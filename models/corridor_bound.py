@@ -34,7 +34,7 @@ import shapely
 
 from models.contract import BOUND_COLUMNS, COL, HORIZON_S, INITIAL_SET, InitialSet
 from models.dynamics import heading_interval, interpolate_bounds, speed_change_interval
-from models.outer_bound import cos_max_towards, half_plane_polygons, outer_bound
+from models.outer_bound import convex_polygons, cos_max_towards, outer_bound
 
 #: Support directions of the per-state position polygon.
 DIRECTIONS = np.arange(16) * (2 * math.pi / 16)
@@ -350,8 +350,7 @@ def sample_bounded_states(
 def bins_union(support: np.ndarray, empty: np.ndarray, directions: np.ndarray) -> shapely.Geometry:
     """The union of one instant's bin polygons (supports [B, M] in ``directions``, [B] empty bins
     skipped): every position reachable then (:func:`partition_supports`)."""
-    polygons = half_plane_polygons(directions, support[~empty])
-    return shapely.union_all([shapely.Polygon(p) for p in polygons])
+    return shapely.union_all(convex_polygons(directions, support[~empty]))
 
 
 def grown_to_hold(

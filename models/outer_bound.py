@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 
 import numba
 import numpy as np
+import shapely
 
 from models.contract import HORIZON_S, INITIAL_SET, InitialSet
 
@@ -79,24 +80,6 @@ def _line_pairs(directions: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray, 
     return i[ok], j[ok], np.linalg.inv(pairs[ok])
 
 
-def candidate_vertices(
-    directions: np.ndarray, supports: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Intersections of every pair of boundary lines of {p : p . (cos phi_m, sin phi_m) <=
-    supports[k, m] for all m}, per row k of ``supports`` [K, M]: x, y [K, P] and [K, P] True where
-    the point satisfies every constraint (a vertex of polygon k). Keeping all feasible pairs means
-    redundant constraints cannot cut a corner off."""
-    i, j, inverse = _line_pairs(tuple(float(d) for d in directions))
-    rhs_a, rhs_b = supports[:, i], supports[:, j]  # [K, P]
-    px = inverse[None, :, 0, 0] * rhs_a + inverse[None, :, 0, 1] * rhs_b
-    py = inverse[None, :, 1, 0] * rhs_a + inverse[None, :, 1, 1] * rhs_b
-    slack = 1e-7 * (1 + np.abs(supports))[:, None, :]
-    normals = np.stack([np.cos(directions), np.sin(directions)])  # [2, M]
-    reach = np.stack([px, py], axis=-1) @ normals  # [K, P, M]
-    feasible = np.all(reach <= supports[:, None, :] + slack, axis=2)
-    return px, py, feasible
-
-
 @numba.njit(cache=True)
 def _feasible_vertices(
     first: np.ndarray,
@@ -105,9 +88,12 @@ def _feasible_vertices(
     normals: np.ndarray,
     supports: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`candidate_vertices` compiled, row by row: each row's feasible pair intersections
-    packed at the front of its row (x, y [K, P, 2]), sorted by angle about their centre, and their
-    counts [K]. A candidate stops being checked at the first constraint it breaks."""
+    """The vertices of {p : p . normal_m <= supports[k, m] for all m} for every row k of
+    ``supports`` [K, M]: the intersections of every pair of boundary lines (``first``, ``second``
+    [P], solved by their ``inverse`` [P, 2, 2], ``_line_pairs``) that satisfy every constraint,
+    packed at the front of the row (x, y [K, P, 2]) and sorted by angle about their centre, and
+    their counts [K]. Keeping all feasible pairs means redundant constraints cannot cut a corner
+    off; a candidate stops being checked at the first constraint it breaks."""
     rows, directions = supports.shape
     pairs = len(first)
     points = np.empty((rows, pairs, 2))
@@ -135,17 +121,37 @@ def _feasible_vertices(
     return points, count
 
 
-def half_plane_polygons(directions: np.ndarray, supports: np.ndarray) -> list[np.ndarray]:
-    """Vertices (counter-clockwise) of {p : p . (cos phi_m, sin phi_m) <= support[k, m] for all m},
-    for every row k of ``supports`` [K, M] (the feasible intersections of every pair of boundary
-    lines, as ``candidate_vertices``, sorted by angle about their centre; compiled, so that 32
-    directions cost what 16 did in numpy); each polygon is convex."""
+def _vertices(directions: np.ndarray, supports: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``_feasible_vertices`` for evenly or unevenly spaced ``directions`` [M] (angles)."""
     first, second, inverse = _line_pairs(tuple(float(d) for d in directions))
     normals = np.stack([np.cos(directions), np.sin(directions)]).astype(np.float64)
-    points, count = _feasible_vertices(
+    return _feasible_vertices(
         first, second, inverse, normals, np.ascontiguousarray(supports, dtype=np.float64)
     )
+
+
+def half_plane_polygons(directions: np.ndarray, supports: np.ndarray) -> list[np.ndarray]:
+    """Vertices (counter-clockwise) of {p : p . (cos phi_m, sin phi_m) <= support[k, m] for all m},
+    for every row k of ``supports`` [K, M] (compiled, ``_feasible_vertices``: 32 directions cost
+    what 16 did in numpy); each polygon is convex."""
+    points, count = _vertices(directions, supports)
     return [points[k, :n] for k, n in enumerate(count.tolist())]
+
+
+def convex_polygons(directions: np.ndarray, supports: np.ndarray) -> np.ndarray:
+    """The polygons of :func:`half_plane_polygons` as shapely polygons [K], built for all rows at
+    once (an empty polygon where the half-planes do not meet)."""
+    points, count = _vertices(directions, supports)
+    if np.any((count > 0) & (count < 3)):
+        raise ValueError("half-planes meeting in a point or a segment make no polygon")
+    polygons = np.empty(len(count), dtype=object)
+    polygons[:] = shapely.Polygon()
+    full = count >= 3
+    if full.any():
+        coords = points[np.arange(points.shape[1])[None, :] < count[:, None]]
+        ring_of = np.repeat(np.arange(int(full.sum())), count[full])
+        polygons[full] = shapely.polygons(shapely.linearrings(coords, indices=ring_of))
+    return polygons
 
 
 def compile_polygon_kernel() -> None:

@@ -52,6 +52,7 @@ from models.outer_bound import (
     SUPPORT_DIRECTIONS,
     OuterBound,
     box_scale,
+    convex_polygons,
     half_plane_polygons,
     outer_bound,
 )
@@ -59,7 +60,6 @@ from service.field_stack import (
     FAR,
     WindowStack,
     block_reduce,
-    convex_polygons,
     dilate_discs,
     span_reduce,
 )

@@ -14,9 +14,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import shapely
-
-from models.outer_bound import candidate_vertices
 
 #: Stands for "+inf" in a contoured field (contourpy needs finite values).
 FAR = 1.0e6
@@ -149,21 +146,3 @@ def dilate_discs(values: np.ndarray, radii_nodes: np.ndarray) -> np.ndarray:
                 rows = np.flatnonzero(applies)
                 out[rows] = np.minimum(out[rows], shifted[rows])
     return out
-
-
-def convex_polygons(directions: np.ndarray, supports: np.ndarray) -> np.ndarray:
-    """Shapely polygons {p : p . (cos phi_m, sin phi_m) <= supports[k, m] for all m}, one per row
-    of ``supports`` [K, M]: the vertices of ``models.outer_bound.candidate_vertices``, sorted and
-    built for all rows at once."""
-    px, py, feasible = candidate_vertices(directions, np.asarray(supports, dtype=float))
-    counts = feasible.sum(axis=1)
-    cx = np.where(feasible, px, 0.0).sum(axis=1) / np.maximum(counts, 1)
-    cy = np.where(feasible, py, 0.0).sum(axis=1) / np.maximum(counts, 1)
-    angle = np.where(feasible, np.arctan2(py - cy[:, None], px - cx[:, None]), np.inf)
-    order = np.argsort(angle, axis=1, kind="stable")
-    keep = np.take_along_axis(feasible, order, axis=1)
-    xs = np.take_along_axis(px, order, axis=1)[keep]
-    ys = np.take_along_axis(py, order, axis=1)[keep]
-    ring_of = np.repeat(np.arange(len(supports)), counts)
-    rings = shapely.linearrings(np.stack([xs, ys], axis=1), indices=ring_of)
-    return shapely.polygons(rings)  # type: ignore[no-any-return]

@@ -7,12 +7,11 @@ import math
 import numpy as np
 import shapely
 
-from models.outer_bound import SUPPORT_DIRECTIONS, half_plane_polygons
+from models.outer_bound import SUPPORT_DIRECTIONS, convex_polygons
 from service.field_stack import (
     FAR,
     WindowStack,
     block_reduce,
-    convex_polygons,
     dilate_discs,
     span_reduce,
 )
@@ -80,15 +79,3 @@ def test_polygon_field_is_negative_exactly_inside_the_polygon() -> None:
         inside = shapely.contains_xy(polygons[j], xs, ys)
         on_edge = np.abs(field[j]) < 1e-9
         assert np.array_equal((field[j] < 0)[~on_edge], inside[~on_edge])
-
-
-def test_convex_polygons_match_the_outer_bounds_polygons() -> None:
-    rng = np.random.default_rng(1)
-    directions = np.linspace(0, 2 * math.pi, SUPPORT_DIRECTIONS, endpoint=False)
-    supports = rng.uniform(0.5, 3.0, size=(20, SUPPORT_DIRECTIONS))
-    mine = convex_polygons(directions, supports)
-    theirs = half_plane_polygons(directions, supports)
-    for polygon, vertices in zip(mine, theirs, strict=True):
-        reference = shapely.Polygon(vertices)
-        assert polygon.is_valid
-        assert polygon.symmetric_difference(reference).area < 1e-9 * reference.area

@@ -8,7 +8,13 @@ import shapely
 
 from models.contract import COL
 from models.eval_settings import SETTINGS
-from models.outer_bound import cos_max_towards, cos_range, half_plane_polygons, outer_bound
+from models.outer_bound import (
+    convex_polygons,
+    cos_max_towards,
+    cos_range,
+    half_plane_polygons,
+    outer_bound,
+)
 from models.rollout import (
     sample_control_schedules,
     sample_reference_schedules,
@@ -52,7 +58,8 @@ def test_half_plane_polygons_are_the_intersections_of_their_half_planes(n_direct
     redundant = rng.uniform(size=supports.shape) < 0.2
     supports = np.where(redundant, supports + rng.uniform(1, 30, supports.shape), supports)
     polygons = half_plane_polygons(directions, supports)
-    for support, vertices in zip(supports, polygons, strict=True):
+    shapes = convex_polygons(directions, supports)  # the same, built as shapely polygons at once
+    for support, vertices, shape in zip(supports, polygons, shapes, strict=True):
         want = shapely.box(-100, -100, 100, 100)
         for phi, h in zip(directions, support, strict=True):
             c, s = np.cos(phi), np.sin(phi)
@@ -67,6 +74,7 @@ def test_half_plane_polygons_are_the_intersections_of_their_half_planes(n_direct
         got = shapely.Polygon(vertices)
         assert got.is_valid and shapely.Polygon(vertices).exterior.is_ccw
         assert got.symmetric_difference(want).area < 1e-6 * want.area
+        assert shape.is_valid and shape.symmetric_difference(want).area < 1e-6 * want.area
 
 
 @pytest.mark.parametrize(

@@ -10,8 +10,8 @@ import pytest
 import shapely
 
 from models.eval_settings import SETTINGS
+from models.outer_bound import convex_polygons
 from service.engine import SWEEPS_PER_WINDOW, FRTEngine, FRTSet, Pose
-from service.field_stack import convex_polygons
 from service.model_runtime import ValueModel
 
 MODEL = Path(__file__).resolve().parent.parent / "models" / "frt_unicycle.onnx"

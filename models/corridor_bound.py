@@ -383,8 +383,9 @@ def partition_tubes(
     each swept along its headings by ``speed_max * instant_s / 2`` (:func:`swept_supports`: the
     farthest a car moves to the nearest instant; ``speed_max`` must bound the speed over the
     horizon; the last instant before t only, since nothing after t belongs to the tube), and the
-    initial disc grown by as much for the times before the first instant. Sound (tests/test_corridor_bound.py), not convex: with
-    the speed coupled it cuts most of the notch behind a car that can turn round.
+    initial disc grown by as much for the times before the first instant. Sound
+    (tests/test_corridor_bound.py), not convex: with the speed coupled it cuts most of the notch
+    behind a car that can turn round.
     ``partitioned_from_s``: instants before it take the interval outer bound's convex polygon
     instead (early sets have no notch; the partition's cost is in the instants it runs on)."""
     instants = np.arange(1, round(max(t_ends) / instant_s) + 1) * instant_s

@@ -1083,14 +1083,14 @@ class FRTEngine:
             steps=partition.steps,
             coupled_speed=True,
             directions=directions,
-            waypoint_bins=partition.waypoint_bins or 1,
-            waypoint_at=partition.waypoint_at or WAYPOINT_AT,
+            waypoint_bins=partition.waypoint_bins,
+            waypoint_at=partition.waypoint_at,
         )
         headings = bin_headings(
             bounds,
             ob.times[rows][cut],
             partition.heading_bins,
-            partition.waypoint_bins or 1,
+            partition.waypoint_bins,
             horizon=self.horizon,
         )
         # The fastest speed of the sweeps within half an instant of each instant.

@@ -146,9 +146,10 @@ def test_speed_coupled_polygons_hold_every_simulated_position(seed: int) -> None
 @pytest.mark.parametrize("seed", [0, 1])
 def test_waypoint_bins_hold_every_simulated_position_and_cut_the_notch_walls(seed: int) -> None:
     """Bins split again by the heading at a waypoint early in [0, t] (``waypoint_bins``; two
-    waypoints in turn for seed 1): the union of a time's polygons still contains the position of every trajectory at that time (wide,
-    shrinking, fast and random settings; switching and extremal schedules, edge starts), and at
-    3 s it is smaller than without the split where steering bounds shrink from wide."""
+    waypoints in turn for seed 1): the union of a time's polygons still contains the position of
+    every trajectory at that time (wide, shrinking, fast and random settings; switching and
+    extremal schedules, edge starts), and at 3 s it is smaller than without the split where
+    steering bounds shrink from wide."""
     from models.corridor_bound import DIRECTIONS, bins_union, partition_supports
 
     rng = np.random.default_rng(seed)

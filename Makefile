@@ -1,7 +1,10 @@
-# Everything runs inside .venv, created on first use and reused after (a stamp tracks pyproject changes).
+# Everything runs inside .venv, created on first use and reused after. Two stamps track pyproject
+# changes: the runtime tier (what `make serve` needs: no torch) and the training and development
+# tiers on top of it (what `make test`, `make train` and the scripts need).
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
+RUNTIME := $(VENV)/.runtime-installed
 STAMP := $(VENV)/.installed
 HOST ?= 127.0.0.1
 PORT ?= 8000
@@ -12,16 +15,20 @@ FIND_LINKS := $(if $(wildcard /opt/wheels),--find-links /opt/wheels,)
 
 .PHONY: venv serve test lint format train train-smoke evaluate evaluate-full compare-authors network-diagnostics bench bench-sustained load scale-test scenarios plots clean
 
-$(STAMP): pyproject.toml client/pyproject.toml
+$(RUNTIME): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet $(FIND_LINKS) -e .
+	touch $(RUNTIME)
+
+$(STAMP): $(RUNTIME) pyproject.toml client/pyproject.toml
 	$(BIN)/python -m pip install --quiet $(FIND_LINKS) -e '.[train,dev]' -e ./client
 	touch $(STAMP)
 
 venv: $(STAMP)
 
-serve: $(STAMP)
-	FRT_MODEL_PATH=$(MODEL) $(BIN)/uvicorn service.app:app --host $(HOST) --port $(PORT)
+serve: $(RUNTIME)
+	FRT_MODEL_PATH=$(MODEL) $(BIN)/uvicorn service.api.app:app --host $(HOST) --port $(PORT)
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

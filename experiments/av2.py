@@ -47,7 +47,7 @@ from shapely.geometry import shape
 
 from experiments.run_scenarios import COLLISION_RADIUS_M, GAMMA, agent_config
 from experiments.server import DEADLINE_MS, wait_exact
-from models.dynamics import wrap_angle
+from reach.dynamics import wrap_angle
 
 ROOT = Path(__file__).resolve().parent.parent
 DATA_DIR = ROOT / "data" / "av2"

@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from experiments.scenes import CAR_LENGTH_M
-from models.dynamics import wrap_angle
+from reach.dynamics import wrap_angle
 
 #: The paper's prediction format: 0.5 s steps over a 3 s horizon (nuScenes is annotated at 2 Hz).
 STEP_S = 0.5

@@ -1,7 +1,7 @@
 """The real service for the experiments: a uvicorn subprocess on a free loopback port, or a URL.
 
 Every experiment talks to the service only through the client SDK (``frt_client.FRTClient``), the
-way a planner would. :func:`connect` starts ``uvicorn service.app:app`` with the given model unless
+way a planner would. :func:`connect` starts ``uvicorn service.api.app:app`` with the given model unless
 a URL is given, waits until the model is loaded, and stops the process on exit.
 """
 
@@ -40,7 +40,7 @@ def free_port() -> int:
 def local_server(
     model: Path, log_path: Path, workers: int = 1, ready_timeout_s: float = 120.0
 ) -> Iterator[str]:
-    """Run ``uvicorn service.app:app`` on a free loopback port; yield its URL.
+    """Run ``uvicorn service.api.app:app`` on a free loopback port; yield its URL.
 
     ``workers`` is the service's ``FRT_FRT_WORKERS`` (workers computing exact FRTs). Server logs
     go to ``log_path``.
@@ -59,7 +59,7 @@ def local_server(
     with log_path.open("wb") as log:
         proc = subprocess.Popen(
             [
-                sys.executable, "-m", "uvicorn", "service.app:app",
+                sys.executable, "-m", "uvicorn", "service.api.app:app",
                 "--host", "127.0.0.1", "--port", str(port),
                 "--log-level", "warning", "--no-access-log",
             ],

@@ -1,4 +1,4 @@
 """The value network of the forward reachable tube: contract, dynamics, training, export, evaluation.
 
-Only `models.contract` and `models.dynamics` are imported by the service; they never import torch.
+Only `reach.contract` and `reach.dynamics` are imported by the service; they never import torch.
 """

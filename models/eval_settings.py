@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from models.contract import BOUND_COLUMNS
+from reach.contract import BOUND_COLUMNS
 
 
 @dataclass(frozen=True)

@@ -7,8 +7,8 @@
   straight, turn again; u2 at its bounds) that sweep the front of the set, the rest under controls
   that switch between the bounds, drive straight, or take random values.
   Every recorded state is reachable, so the model must contain it (recall).
-* Outer references: the interval outer bound of models/outer_bound.py, convex; and the tighter
-  speed-coupled partition of models/corridor_bound.py (``partition_tubes``: a polygon per final
+* Outer references: the interval outer bound of reach/outer_bound.py, convex; and the tighter
+  speed-coupled partition of reach/partition.py (``partition_tubes``: a polygon per final
   heading bin and instant, the speed coupled over time), which has most of the notch behind a car
   that can turn round. Nothing reachable can be outside either; whatever the served tube keeps
   outside the partition is proven unreachable, however well the rollouts covered the set.
@@ -23,7 +23,7 @@ and the area of K(t) outside the partition bound and how far its cells reach bey
 (95th percentile, as against the rollouts).
 
 K(t) is the set the service serves once refined: by default (``FRT_FRT_NOTCH_CUT``, ``--notch-cut``)
-cut to a cheaper speed-coupled partition where the car may turn round (``service.engine.NotchCut``),
+cut to a cheaper speed-coupled partition where the car may turn round (``reach.engine.NotchCut``),
 by the last of its stages (``NOTCH_STAGES``). The sets the service answers from before that lands
 are reported beside it: the first stage's (``iou_first_stage``, ``beyond_first_stage_p95_m``) and
 the uncut set (``iou_uncut``, ``beyond_uncut_p95_m``).
@@ -51,8 +51,6 @@ import shapely
 from scipy.spatial import cKDTree
 from tqdm import tqdm
 
-from models.contract import COL, HORIZON_S, N_INPUTS
-from models.corridor_bound import WAYPOINT_AT, partition_tubes
 from models.eval_settings import SETTINGS, Setting
 from models.export_card import write_card
 from models.rollout import (
@@ -61,14 +59,18 @@ from models.rollout import (
     sample_initial_states,
     sample_reference_schedules,
 )
+from models.runtime import ValueModel
 from models.sampling import sample_parameters
-from service.engine import NOTCH_STAGES, FRTEngine, Pose
-from service.model_runtime import ValueModel
-from service.settings import Settings
+from models.value_fields import StencilField, engine_for
+from reach.contract import COL, HORIZON_S, N_INPUTS
+from reach.engine import FRTEngine
+from reach.frames import Pose
+from reach.notch import NOTCH_CUT_BY_DEFAULT, NOTCH_STAGES
+from reach.partition import WAYPOINT_AT, partition_tubes
 
 #: Whether the service cuts notches by default (its sets once refined): what ``make evaluate``
 #: describes.
-SERVED_NOTCH_CUT = bool(Settings.model_fields["frt_notch_cut"].default)
+SERVED_NOTCH_CUT = NOTCH_CUT_BY_DEFAULT
 
 TUBE_TIMES = (1.0, 2.0, 3.0)
 #: The partition outer reference (``partition_tubes``): 32 final-heading bins, each split into 8
@@ -213,11 +215,10 @@ def compare_cells(reference: np.ndarray, model: np.ndarray) -> dict[str, float]:
 
 
 def without_network(engine: FRTEngine) -> FRTEngine:
-    """The same engine with the network's level at +inf: its set is then the outer-bound
-    construction alone, so comparing the two shows what the network itself adds."""
+    """The same engine with no value field: its set is the certified geometry alone, so comparing
+    the two shows what the network itself adds."""
     bare = copy.copy(engine)
-    bare.level = math.inf
-    bare.level_per_scale = math.inf if engine.level_per_scale is not None else None
+    bare.value_field = None
     return bare
 
 
@@ -302,6 +303,7 @@ def evaluate_setting(
         # The served tube's cells beyond the bound's, as "beyond" measures them against rollouts.
         row["beyond_partition_p95_m"] = compare_cells(bound_cells, tube_cells)["beyond_p95_m"]
         tube_without = frt_without.geometry("tube", t)
+        row["network_cut_m2"] = float(tube_without.difference(tube).area)
         row["iou_without_network"] = compare_cells(reference, model_cells(tube_without, reference))[
             "iou"
         ]
@@ -344,6 +346,7 @@ def calibrate(
 ) -> dict[str, Any]:
     """Scenario calibration of delta (network) and of the projection level used by the engine."""
     values, stencil = [], []
+    teacher = StencilField(model)
     slice_times = np.arange(1, engine.n_slices) * engine.slice_dt
     for row, t, states in calibration_draws(n_settings, per_setting, slice_times, rng):
         v_start, bounds = float(row[COL["v_start"]]), row[6:].astype(np.float32)
@@ -351,7 +354,7 @@ def calibrate(
         ob = engine.outer(v_start, bounds)
         for s in np.unique(t):
             rows = t == s
-            m, _ = engine.stencil_min(
+            m, _ = teacher.stencil_min(
                 float(s), states[rows, 0], states[rows, 1], v_start, bounds, ob
             )
             stencil.append(m)
@@ -401,6 +404,10 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, float]:
         "rows_where_the_network_cuts": sum(
             r["iou"] > r["iou_without_network"] + 1e-9 for r in rows
         ),
+        "network_cut_m2_max": max(r["network_cut_m2"] for r in rows),
+        # Read by the service (``models.value_fields.network_decision``): where the network cuts
+        # nothing, it is not evaluated on the hot path.
+        "network_cuts": any(r["network_cut_m2"] > 1e-6 for r in rows),
         "min_recall_cells_partition": min(r["partition_recall_cells"] for r in rows),
         "mean_iou_partition": float(np.mean([r["partition_iou"] for r in rows])),
         "p95_beyond_m_mean_partition": float(np.mean([r["partition_beyond_p95_m"] for r in rows])),
@@ -521,7 +528,7 @@ def main() -> None:
     if args.calibrate:
         started = time.monotonic()
         calibration = calibrate(
-            model, FRTEngine(model), args.calibration_settings, args.calibration_per_setting, rng
+            model, engine_for(model), args.calibration_settings, args.calibration_per_setting, rng
         )
         calibration["time_s"] = round(time.monotonic() - started, 1)
         # Calibrated on the runtime graph; the contract graph differs by at most this much.
@@ -541,7 +548,7 @@ def main() -> None:
         if args.calibrate_only:
             return
     delta = model.card.delta
-    engine = FRTEngine(model, notch_cut=args.notch_cut)
+    engine = engine_for(model, notch_cut=args.notch_cut)
     settings = [s for s in SETTINGS if not args.only or s.name in args.only]
     rows: list[dict[str, Any]] = []
     artefacts: dict[str, dict[str, Any]] = {}

@@ -17,7 +17,9 @@ import numpy as np
 import onnx
 import torch
 
-from models.contract import (
+from models.network import NetworkConfig, ValueNetwork, asinh_by_logs
+from models.sampling import sample_parameters, set_state
+from reach.contract import (
     COLUMNS,
     HORIZON_S,
     INITIAL_SET,
@@ -27,8 +29,6 @@ from models.contract import (
     U2_LIMIT,
     V_START_MAX,
 )
-from models.network import NetworkConfig, ValueNetwork, asinh_by_logs
-from models.sampling import sample_parameters, set_state
 
 OPSET = 17
 POSITION_LIMIT = INITIAL_SET.radius_m + (V_START_MAX + INITIAL_SET.speed_margin_mps) * HORIZON_S

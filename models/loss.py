@@ -2,12 +2,12 @@
 
 * HJB PDE residual (paper, eq. hjb without the min with l: the *set* at exactly time t, which stays
   correct when the control bounds vary in time; the tube is the minimum over time slices):
-  ``dV/dt + H(x, t, grad_x V) = 0`` with H the optimal Hamiltonian of ``models.dynamics``.
+  ``dV/dt + H(x, t, grad_x V) = 0`` with H the optimal Hamiltonian of ``reach.dynamics``.
 * Dynamic-programming upper bounds from rollouts of the true dynamics: V(t, xi(t)) <= l(xi(0)).
   These guard against the failure that matters, an under-approximated set.
 * An exact lower bound from the heading: theta' = u1 does not depend on the state, so
   |theta(0)| >= distance from theta(t) to the interval of reachable heading changes.
-* Optionally, proven lower bounds from heading and speed corridors (models/corridor_bound.py) at
+* Optionally, proven lower bounds from heading and speed corridors (reach/corridors.py) at
   precomputed states around the reachable set: where V must be high, which the DP upper bounds
   (pushing V down at reachable states) and a small PDE weight leave the network free to ignore.
 """
@@ -19,8 +19,8 @@ from dataclasses import dataclass
 
 import torch
 
-from models.contract import COL, INITIAL_SET
-from models.dynamics import heading_interval, interpolate_bounds, optimal_hamiltonian, wrap_angle
+from reach.contract import COL, INITIAL_SET
+from reach.dynamics import heading_interval, interpolate_bounds, optimal_hamiltonian, wrap_angle
 
 
 @dataclass(frozen=True)

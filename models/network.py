@@ -21,8 +21,8 @@ from dataclasses import asdict, dataclass
 import torch
 from torch import nn
 
-from models.contract import COL, HORIZON_S, INITIAL_SET, U1_LIMIT, U2_LIMIT, V_START_MAX, InitialSet
-from models.dynamics import wrap_angle
+from reach.contract import COL, HORIZON_S, INITIAL_SET, U1_LIMIT, U2_LIMIT, V_START_MAX, InitialSet
+from reach.dynamics import wrap_angle
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ the service needs it on thousands of nodes per observation. This module distils
 
     W(s, x, y; v_start, bounds) ~ min_stencil V(s, x, y, ., .; v_start, bounds)
 
-(the teacher is the engine's stencil minimum, ``FRTEngine.stencil_min``) into a small MLP on the
+(the teacher is the stencil minimum of V, ``models.value_fields.StencilField.stencil_min``) into a small MLP on the
 same nominal-frame features, then calibrates its level against rollouts of the true dynamics, so the
 service's K is {W <= delta_W} with a scenario guarantee like the main network's.
 
@@ -30,10 +30,8 @@ import torch
 from torch import nn
 from tqdm import tqdm
 
-from models.contract import COL, HORIZON_S, INITIAL_SET, N_INPUTS
 from models.export_card import file_sha256, write_card
 from models.network import NominalFrame, asinh_by_logs
-from models.outer_bound import box_scale
 from models.rollout import (
     EDGE_SHARE,
     rk4_rollout,
@@ -42,6 +40,8 @@ from models.rollout import (
     sample_reference_schedules,
 )
 from models.sampling import sample_parameters
+from reach.contract import COL, HORIZON_S, INITIAL_SET, N_INPUTS
+from reach.outer_bound import box_scale
 
 
 class ProjectionNetwork(nn.Module):
@@ -170,14 +170,14 @@ def teacher_dataset(engine, n_settings: int, per_setting: int, rng: np.random.Ge
         r = rows[a:b]
         v_start, params = float(r[0, COL["v_start"]]), r[0, 6:].astype(np.float32)
         ob = engine.outer(v_start, params)
-        targets[a:b], _ = engine.stencil_min(
+        targets[a:b], _ = engine.value_field.stencil_min(
             float(r[0, COL["t"]]), r[:, COL["px"]], r[:, COL["py"]], v_start, params, ob
         )
     return rows.astype(np.float32), targets
 
 
 TEACHERS = {
-    "value": "FRTEngine.stencil_min of the runtime graph",
+    "value": "StencilField.stencil_min of the runtime graph",
     "occupancy": "distance to positions reached by rollouts of the true dynamics "
     "(models.projection.occupancy_dataset)",
 }
@@ -212,7 +212,7 @@ def occupancy_dataset(
     fresh rollouts (``calibrated_levels``) is what makes the set contain what is reachable."""
     from scipy.spatial import cKDTree
 
-    from models.outer_bound import outer_bound
+    from reach.outer_bound import outer_bound
 
     steps = round(HORIZON_S / slice_dt)
     rows, targets = [], []
@@ -265,11 +265,12 @@ def unreachable_xy(
 
     Per random setting and slice time, points drawn uniformly in the outer box are kept when the
     outer polygon contains them and no heading x speed bin polygon of
-    ``models.corridor_bound.partition_supports`` does: no trajectory from the initial set is there
+    ``reach.corridors.partition_supports`` does: no trajectory from the initial set is there
     at that time (sound: tests/test_corridor_bound.py). Mostly the notch behind a car that can turn
     round, which the distilled V calls reachable (docs/model.md)."""
-    from models.corridor_bound import DIRECTIONS, partition_supports
-    from models.outer_bound import outer_bound
+    from reach.corridors import DIRECTIONS
+    from reach.outer_bound import outer_bound
+    from reach.partition import partition_supports
 
     late = _slice_times(slice_dt)
     late = late[late >= 1.0]
@@ -420,7 +421,7 @@ def calibrated_levels(
         "delta": float(w.max()),
         "level_offset_m": offset,
         "level_per_scale": slope,
-        "level_scale": "models.outer_bound.box_scale of the outer box at the instant",
+        "level_scale": "reach.outer_bound.box_scale of the outer box at the instant",
         "level_candidates": len(LEVEL_SLOPES) if affine else 1,
         "calibration_samples": len(reach),
         "quantiles_at_reachable": {q: float(np.quantile(w, float(q))) for q in ("0.5", "0.99")},
@@ -434,11 +435,11 @@ def recalibrate(
     model_path: Path, n_settings: int, rng: np.random.Generator, affine: bool = False
 ) -> None:
     """Re-calibrate the shipped projection graph's levels in its card (no distillation)."""
-    from service.engine import PROJECTION_SLICE_DT, FRTEngine
-    from service.model_runtime import ValueModel
+    from models.runtime import ValueModel
+    from models.value_fields import engine_for
 
     model = ValueModel.load(model_path, threads=2)
-    engine = FRTEngine(model, projection=False, slice_dt=PROJECTION_SLICE_DT)
+    engine = engine_for(model, stencil=True)
     reach = reachable_xy(n_settings, 64, CALIBRATION_SLICE_DT, rng).astype(np.float32)
     w = model.evaluate_projection(reach)
     card = json.loads(model_path.with_suffix(".json").read_text())
@@ -448,8 +449,8 @@ def recalibrate(
 
 
 def main() -> None:
-    from service.engine import PROJECTION_SLICE_DT, FRTEngine
-    from service.model_runtime import ValueModel
+    from models.runtime import ValueModel
+    from models.value_fields import engine_for
 
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--model", type=Path, default=Path("models/frt_unicycle.onnx"))
@@ -504,7 +505,7 @@ def main() -> None:
     started = time.monotonic()
     rng = np.random.default_rng(args.seed)
     model = ValueModel.load(args.model, threads=2)
-    engine = FRTEngine(model, projection=False, slice_dt=PROJECTION_SLICE_DT)
+    engine = engine_for(model, stencil=True)
     if args.teacher == "occupancy":
         x, y = occupancy_dataset(args.settings, rng)
     else:

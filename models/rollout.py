@@ -16,8 +16,8 @@ from typing import Any
 
 import numpy as np
 
-from models.contract import HORIZON_S, INITIAL_SET, InitialSet
-from models.dynamics import interpolate_bounds, unicycle_derivative
+from reach.contract import HORIZON_S, INITIAL_SET, InitialSet
+from reach.dynamics import interpolate_bounds, unicycle_derivative
 
 Array = Any
 

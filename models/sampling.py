@@ -11,14 +11,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from models.contract import COL, HORIZON_S, N_INPUTS, U1_LIMIT, U2_LIMIT, V_START_MAX
-from models.dynamics import initial_set_value
 from models.rollout import (
     rk4_rollout,
     sample_control_schedules,
     sample_initial_states,
     sample_reference_schedules,
 )
+from reach.contract import COL, HORIZON_S, N_INPUTS, U1_LIMIT, U2_LIMIT, V_START_MAX
+from reach.dynamics import initial_set_value
 
 
 def _interval(n: int, limit: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:

@@ -20,10 +20,10 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from models.contract import HORIZON_S
 from models.loss import LossWeights, training_losses
 from models.network import NetworkConfig, ValueNetwork
 from models.sampling import sample_training_batch
+from reach.contract import HORIZON_S
 
 
 @dataclass
@@ -42,7 +42,7 @@ class TrainConfig:
     weights: dict = field(default_factory=dict)
     #: A run's checkpoint to start from (weights, optimiser and step), when the run has none.
     init_checkpoint: str | None = None
-    #: .npz of states with proven lower bounds on V (``python -m models.corridor_bound``) for the
+    #: .npz of states with proven lower bounds on V (``python -m models.bounded_states``) for the
     #: corridor hinge (weight ``weights["corridor"]``), and how many of them per step.
     corridor_data: str | None = None
     corridor_per_step: int = 2048

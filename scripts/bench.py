@@ -25,11 +25,11 @@ it with httpx from this process. Prints medians and p99 for:
    costs with no work in the route), next to the warm check;
 6. the exact set alone, in-process, for a moving, a parked and a wide-bound car (for the moving car
    also with the projection network evaluated at every lattice node, i.e. without
-   ``service.refine``; for the wide one also cut to the speed-coupled partition, the service's
+   ``reach.refine``; for the wide one also cut to the speed-coupled partition, the service's
    background refinement of such sets, ``FRTEngine.exact(notch_cut=True)``, by its first stage
-   and by its last, ``service.engine.NOTCH_STAGES``);
+   and by its last, ``reach.engine.NOTCH_STAGES``);
 7. serialising a 50-agent collision answer in-process, the way the service does
-   (``service.routes.model_json``) and the way FastAPI does for a returned model (validated again
+   (``service.api.routes.model_json``) and the way FastAPI does for a returned model (validated again
    against ``response_model``, then ``jsonable_encoder`` and ``json.dumps``), alternately;
 
 and, side by side in the same run, the naive approach: building the set by evaluating the full
@@ -74,7 +74,7 @@ def running_service(model: Path):
             sys.executable,
             "-m",
             "uvicorn",
-            "service.app:app",
+            "service.api.app:app",
             "--port",
             str(port),
             "--log-level",
@@ -221,7 +221,7 @@ def bench_observe_to_ready_wide(client: httpx.Client, n: int, n_fine: int = 15) 
     observation rate), ``n`` times back to back; and ``n_fine`` times, observed FINE_PERIOD_S
     apart (the fine stage is skipped when it would land after the agent's next observation), until
     the last stage is (``frt_refinement: done`` at the last stage)."""
-    from service.engine import NOTCH_STAGES
+    from reach.notch import NOTCH_STAGES
 
     rng = np.random.default_rng(2)
     wide = WIDE_STEERING_VAR
@@ -490,11 +490,12 @@ def server_counters(url: str) -> dict[str, int]:
 
 def bench_naive(model: Path, n: int) -> dict:
     """The naive approach: per query, the set from the full network on a dense grid, no cache."""
-    from service.engine import FRTEngine, Pose
-    from service.model_runtime import ValueModel
+    from models.runtime import ValueModel
+    from models.value_fields import engine_for
+    from reach.frames import Pose
 
     vm = ValueModel.load(model, threads=1)
-    naive = FRTEngine(vm, projection=False)
+    naive = engine_for(vm, stencil=True)
     bounds = np.array([-0.15, -1.5, -0.15, -1.5, 0.15, 1.5, 0.15, 1.5])
     points = np.array([[p["x"], p["y"]] for p in trajectory(0.1)])
     times = []
@@ -519,7 +520,7 @@ EXACT_CASES = {
 
 def fifty_agent_answer():
     """A 50-agent answer to a 20-point check, as the service builds it (``model_construct``)."""
-    from service.schemas import CollisionCheckResponse, MultiCollisionCheckResponse
+    from service.api.schemas import CollisionCheckResponse, MultiCollisionCheckResponse
 
     rng = np.random.default_rng(0)
     results = [
@@ -550,8 +551,8 @@ def bench_serialisation(n: int) -> dict[str, dict]:
     from fastapi.utils import create_model_field
     from starlette.responses import JSONResponse
 
-    from service.routes.model_json import ModelJSONResponse
-    from service.schemas import MultiCollisionCheckResponse
+    from service.api.routes.model_json import ModelJSONResponse
+    from service.api.schemas import MultiCollisionCheckResponse
 
     answer = fifty_agent_answer()
     field = create_model_field(
@@ -584,16 +585,21 @@ def bench_serialisation(n: int) -> dict[str, dict]:
 
 def bench_exact_in_process(model: Path, n: int) -> dict[str, dict]:
     """FRTEngine.exact alone (no HTTP, no queue): what an observation costs the worker."""
-    from service.engine import FRTEngine, Pose
-    from service.model_runtime import ValueModel
+    from models.runtime import ValueModel
+    from models.value_fields import engine_for, network_decision
+    from reach.engine import FRTEngine
+    from reach.frames import Pose
 
     value_model = ValueModel.load(model, threads=1)
-    engine = FRTEngine(value_model)
-    # The same set with the projection evaluated at every node (service.refine off), interleaved
-    # with the served engine's runs so that both see the same machine.
-    full = FRTEngine(value_model, refine=False)
+    # As the service builds it: with the network only where the card says it cuts (FRT_NETWORK).
+    network, _ = network_decision(value_model.card, "auto")
+    engine = engine_for(value_model, network=network)
+    # The same set with the network evaluated (FRT_NETWORK=on), coarse-to-fine and at every node
+    # (reach.refine off), interleaved with the served engine's runs so that all see one machine.
+    with_network = engine_for(value_model, network=True)
+    full = engine_for(value_model, network=True, refine=False)
     # The same set also cut to the speed-coupled partition (the service's background refinement).
-    notched = FRTEngine(value_model, notch_cut=True)
+    notched = engine_for(value_model, network=network, notch_cut=True)
     out = {}
     for name, (v_start, bounds) in EXACT_CASES.items():
         b = np.array(bounds)
@@ -604,8 +610,10 @@ def bench_exact_in_process(model: Path, n: int) -> dict[str, dict]:
             return lambda: e.exact(Pose(0.0, 0.0, 0.0), v, b, notch_stage=stage)
 
         variants = {name: run(engine)}
+        if not network:
+            variants[f"{name}_with_network"] = run(with_network)
         if "moving" in name:
-            variants[f"{name}_every_node"] = run(full)
+            variants[f"{name}_with_network_every_node"] = run(full)
         if "wide" in name:  # each stage of the refinement (NOTCH_STAGES), the last as before
             variants[f"{name}_notch_cut_stage_1"] = run(notched, 1)
             variants[f"{name}_notch_cut"] = run(notched)
@@ -723,6 +731,14 @@ def main() -> None:
     if "naive_over_engine_p50_ratio" in results:
         ratio = results["naive_over_engine_p50_ratio"]
         print(f"naive / engine (p50, same run): {ratio:.0f}x")
+    for name in EXACT_CASES:
+        served, evaluated = results.get(name), results.get(f"{name}_with_network")
+        if served and evaluated:
+            saving = evaluated["p50_ms"] - served["p50_ms"]
+            print(
+                f"{name}: the network skipped saves {saving:.2f} ms at the median "
+                f"({evaluated['p50_ms'] / served['p50_ms']:.2f}x, same run)"
+            )
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(results, indent=2))
     print(f"wrote {args.out}")

@@ -24,11 +24,9 @@ from scipy.spatial import cKDTree
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from models.contract import COL, HORIZON_S, N_INPUTS  # noqa: E402
 from models.eval_settings import SETTINGS  # noqa: E402
 from models.evaluate import model_inputs, simulate  # noqa: E402
 from models.network import NetworkConfig, ValueNetwork  # noqa: E402
-from models.outer_bound import outer_bound  # noqa: E402
 from models.rollout import (  # noqa: E402
     EDGE_SHARE,
     rk4_rollout,
@@ -36,6 +34,8 @@ from models.rollout import (  # noqa: E402
     sample_reference_schedules,
 )
 from models.sampling import sample_parameters  # noqa: E402
+from reach.contract import COL, HORIZON_S, N_INPUTS  # noqa: E402
+from reach.outer_bound import outer_bound  # noqa: E402
 
 NAMES = ("urban_wide", "shrinking_wide_to_narrow", "low_confidence_urban", "urban_medium")
 BINS_M = ((0.0, 0.7), (2.0, 4.0), (4.0, 8.0), (8.0, np.inf))

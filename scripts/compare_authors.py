@@ -34,11 +34,11 @@ from shapely.geometry import Polygon
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from models.contract import BOUND_COLUMNS, COL, N_INPUTS  # noqa: E402
 from models.eval_settings import SETTINGS  # noqa: E402
 from models.evaluate import TUBE_TIMES, simulate  # noqa: E402
-from models.outer_bound import outer_bound  # noqa: E402
-from service.model_runtime import ValueModel  # noqa: E402
+from models.runtime import ValueModel  # noqa: E402
+from reach.contract import BOUND_COLUMNS, COL, N_INPUTS  # noqa: E402
+from reach.outer_bound import outer_bound  # noqa: E402
 
 ANCHOR = ROOT.parent / "shared" / "anchors" / "authors_model_final.pth"
 U1_RANGE = 1.0

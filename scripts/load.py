@@ -9,7 +9,7 @@ since the previous observation (its average controls), and a constant-control pr
 flight, so the offered load is bounded; the run stops by itself after ``--duration`` seconds.
 
 At the end it verifies, for every human, that the service holds exactly the β the harness computes
-from what it sent (with the service's own filter, ``service.confidence``), the FRT version equal to
+from what it sent (with the service's own filter, ``service.flows.confidence``), the FRT version equal to
 the number of observations accepted, and the last timestamp sent; and each observation's answer
 must carry the β and version expected at that moment. A lost or reordered update shows. It prints throughput and p50/p95/p99/max latency per operation, errors and deadline misses,
 writes a JSON summary (``--out``, default results/load.json) and a latency plot beside it (.png).
@@ -45,7 +45,7 @@ if str(ROOT) not in sys.path:
 
 from frt_client import NO_RETRY, AsyncFRTClient, FRTError  # noqa: E402
 
-from service.confidence import Belief, hypotheses, prior_belief, update_belief  # noqa: E402
+from service.flows.confidence import Belief, hypotheses, prior_belief, update_belief  # noqa: E402
 
 LOCAL_HOSTS = {"127.0.0.1", "localhost", "::1"}
 MAX_DURATION_S = 600.0
@@ -222,7 +222,7 @@ class Expected:
     def accept(
         self, action: tuple[float, float] | None, prediction: dict[str, Any], timestamp: float
     ) -> None:
-        """Apply one accepted observation exactly as the service does (service.agents.observe)."""
+        """Apply one accepted observation exactly as the service does (service.flows.agents.observe)."""
         assert self.beta_low is not None and self.epsilon is not None
         if self.belief is None:
             self.belief = prior_belief(hypotheses(self.beta_low))

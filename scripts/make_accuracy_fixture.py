@@ -2,7 +2,7 @@
 
 Reachable states come from rollouts of the true dynamics under the evaluation's schedules, extremal
 ones included (models/rollout.py, ``sample_reference_schedules``); unreachable ones lie
-at least 1 m outside the interval outer bound (models/outer_bound.py). Neither uses the network.
+at least 1 m outside the interval outer bound (reach/outer_bound.py). Neither uses the network.
 """
 
 from __future__ import annotations
@@ -11,15 +11,15 @@ from pathlib import Path
 
 import numpy as np
 
-from models.contract import COL, HORIZON_S, N_INPUTS
 from models.eval_settings import SETTINGS
-from models.outer_bound import outer_bound
 from models.rollout import (
     EDGE_SHARE,
     rk4_rollout,
     sample_initial_states,
     sample_reference_schedules,
 )
+from reach.contract import COL, HORIZON_S, N_INPUTS
+from reach.outer_bound import outer_bound
 
 NAMES = (
     "stationary_narrow",

@@ -27,11 +27,12 @@ from scipy.spatial import cKDTree
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from models.contract import COL, N_INPUTS  # noqa: E402
 from models.eval_settings import SETTINGS  # noqa: E402
 from models.evaluate import simulate  # noqa: E402
-from service.engine import FRTEngine  # noqa: E402
-from service.model_runtime import ValueModel  # noqa: E402
+from models.runtime import ValueModel  # noqa: E402
+from models.value_fields import engine_for  # noqa: E402
+from reach.contract import COL, N_INPUTS  # noqa: E402
+from reach.engine import FRTEngine  # noqa: E402
 
 BINS_M = ((0.0, 0.5), (1.0, 2.0), (2.0, 4.0), (4.0, 8.0), (8.0, np.inf))
 DEFAULT_SETTINGS = (
@@ -76,7 +77,7 @@ def diagnose(
     xy = np.stack([gx.ravel(), gy.ravel()], axis=1)
     xy = xy[shapely.contains_xy(polygon, xy[:, 0], xy[:, 1])]
     distance, _ = cKDTree(reached).query(xy)
-    level = float(engine.levels(ob, [row])[0])
+    level = float(engine.value_field.levels(ob.box_at[[row]])[0])
     delta = model.card.delta
     out = []
     for lo, hi in BINS_M:
@@ -84,7 +85,7 @@ def diagnose(
         if len(pick) == 0:
             continue
         pick = rng.choice(pick, size=min(per_bin, len(pick)), replace=False)
-        w, _ = engine.projected_value(
+        w = engine.value_field.projected(
             np.full(len(pick), t), xy[pick, 0], xy[pick, 1], setting.v_start, bounds
         )
         v_min = min_over_heading_and_speed(model, t, xy[pick], setting.v_start, bounds, ob, row)
@@ -117,7 +118,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "network_diagnostics.json")
     args = parser.parse_args()
     model = ValueModel.load(args.model, prefer_runtime_graph=False)
-    engine = FRTEngine(ValueModel.load(args.model))
+    engine = engine_for(ValueModel.load(args.model))
     rows = []
     for name in args.settings:
         rows += diagnose(model, engine, name, args.t, args.rollouts, args.per_bin)

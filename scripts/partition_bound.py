@@ -4,11 +4,11 @@
 than 1.5 m beyond the rollout cells (the notch behind a car that can turn round), the uncut exact
 tube (the engine's without its notch cut: what the service serves until its background refinement
 lands, `make evaluate`'s "uncut" column) is cut to the union over instants 0.1 s apart of the
-partition polygons of ``models.corridor_bound.partition_supports`` (one convex polygon per final
+partition polygons of ``reach.corridors.partition_supports`` (one convex polygon per final
 heading x final speed bin, each swept along its headings by how far a car moves in half an
 instant, ``swept_supports``; a bin count
 ending in ``c``, e.g. ``16x1c``, couples the speed over time by a linear programme per bin and
-direction, ``models.speed_lp``), and both are
+direction, ``reach.speed_programme``), and both are
 compared with the rollout cells as in ``models.evaluate`` (recall, IoU, "beyond" p95). It also
 times the partition per set: whether the cut could run online.
 
@@ -31,7 +31,6 @@ from tqdm import tqdm
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from models.corridor_bound import partition_tubes  # noqa: E402
 from models.eval_settings import SETTINGS  # noqa: E402
 from models.evaluate import (  # noqa: E402
     CELL_M,
@@ -40,8 +39,10 @@ from models.evaluate import (  # noqa: E402
     simulate,
     swept_cells,
 )
-from service.engine import FRTEngine, Pose  # noqa: E402
-from service.model_runtime import ValueModel  # noqa: E402
+from models.runtime import ValueModel  # noqa: E402
+from models.value_fields import engine_for  # noqa: E402
+from reach.frames import Pose  # noqa: E402
+from reach.partition import partition_tubes  # noqa: E402
 
 NAMES = (
     "stationary_wide_limits",
@@ -139,7 +140,7 @@ def main() -> None:
         (int(h), int(v.rstrip("c")), v.endswith("c"))
         for h, v in (b.split("x") for b in args.bins.split(","))
     ]
-    engine = FRTEngine(ValueModel.load(args.model, threads=2))
+    engine = engine_for(ValueModel.load(args.model, threads=2))
     settings = [s for s in SETTINGS if s.name in (args.only or NAMES)]
     directions = np.arange(args.directions) * (2 * np.pi / args.directions)
     rows = []

@@ -26,7 +26,7 @@ from matplotlib.figure import Figure
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from service.confidence import Belief, hypotheses, prior_belief, update_belief  # noqa: E402
+from service.flows.confidence import Belief, hypotheses, prior_belief, update_belief  # noqa: E402
 from tests.test_confidence import (  # noqa: E402
     BETA_LOWS,
     COV,

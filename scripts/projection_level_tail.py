@@ -20,10 +20,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from models.contract import COL  # noqa: E402
 from models.projection import CALIBRATION_SLICE_DT, reachable_xy, set_scales  # noqa: E402
-from service.engine import PROJECTION_SLICE_DT, FRTEngine  # noqa: E402
-from service.model_runtime import ValueModel  # noqa: E402
+from models.runtime import ValueModel  # noqa: E402
+from models.value_fields import engine_for  # noqa: E402
+from reach.contract import COL  # noqa: E402
 
 
 def main() -> None:
@@ -35,7 +35,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "projection_level_tail.json")
     args = parser.parse_args()
     model = ValueModel.load(args.model, threads=2)
-    engine = FRTEngine(model, projection=False, slice_dt=PROJECTION_SLICE_DT)
+    engine = engine_for(model, stencil=True)
     rng = np.random.default_rng(args.seed + 1)  # the generator --calibrate-only draws from
     reach = reachable_xy(args.settings, 64, CALIBRATION_SLICE_DT, rng).astype(np.float32)
     w = model.evaluate_projection(reach)

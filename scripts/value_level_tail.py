@@ -20,10 +20,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from models.contract import COL  # noqa: E402
 from models.evaluate import calibration_draws, model_inputs  # noqa: E402
-from service.engine import FRTEngine  # noqa: E402
-from service.model_runtime import ValueModel  # noqa: E402
+from models.runtime import ValueModel  # noqa: E402
+from models.value_fields import engine_for  # noqa: E402
+from reach.contract import COL  # noqa: E402
 
 
 def main() -> None:
@@ -36,7 +36,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "value_level_tail.json")
     args = parser.parse_args()
     model = ValueModel.load(args.model, threads=2)
-    engine = FRTEngine(model)
+    engine = engine_for(model)
     slice_times = np.arange(1, engine.n_slices) * engine.slice_dt
     rng = np.random.default_rng(args.seed)
     inputs = []

@@ -45,7 +45,7 @@ def wait_ready(url: str, timeout_s: float = 30.0, proc: subprocess.Popen | None 
 
 
 class LiveServer:
-    """A real ``uvicorn service.app:app`` process on a free loopback port."""
+    """A real ``uvicorn service.api.app:app`` process on a free loopback port."""
 
     def __init__(self, env: dict[str, str], log_path: Path) -> None:
         self.port = _free_port()
@@ -55,7 +55,7 @@ class LiveServer:
         self._log = log_path.open("wb")
         self.proc = subprocess.Popen(
             [
-                sys.executable, "-m", "uvicorn", "service.app:app",
+                sys.executable, "-m", "uvicorn", "service.api.app:app",
                 "--host", "127.0.0.1", "--port", str(self.port),
                 "--log-level", "warning", "--no-access-log",
             ],

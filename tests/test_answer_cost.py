@@ -1,5 +1,5 @@
 """Answering within the deadline: cost estimates, and exact sets answered conservatively when there
-is no time left to measure them (service.answer_cost, service.checks)."""
+is no time left to measure them (service.runtime.answer_cost, service.flows.checks)."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
-from service.answer_cost import SPREAD, AnswerCosts, CostEstimate
-from service.settings import Settings
+from service.runtime.answer_cost import SPREAD, AnswerCosts, CostEstimate
+from service.runtime.settings import Settings
 from tests.fixtures.payloads import observation
 from tests.test_api_errors import client_for
 

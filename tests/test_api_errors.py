@@ -9,8 +9,8 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
-from service.app import create_app
-from service.settings import Settings
+from service.api.app import create_app
+from service.runtime.settings import Settings
 from tests.fixtures.payloads import NARROW_BOUNDS, observation
 
 LIMITS = {"max_prediction_steps": 8, "max_trajectory_points": 5, "max_agents_per_check": 3}
@@ -120,7 +120,7 @@ def test_settings_limit_array_lengths(client: TestClient) -> None:
 def test_out_of_trained_range_is_a_named_422(client: TestClient) -> None:
     r = client.post("/v1/agents/fast/observations", json=observation(1.0, speed=25.0))
     assert field_of(r) == "state.speed"
-    assert "trained range" in r.json()["detail"][0]["msg"]
+    assert "range [0, 20]" in r.json()["detail"][0]["msg"]
     assert client.get("/v1/agents/fast").status_code == 404  # nothing stored
     frt = {"state": {"x": 0, "y": 0, "heading": 0, "speed": 5}, "control_bounds": NARROW_BOUNDS}
     frt["control_bounds"] = {**NARROW_BOUNDS, "u2_max_end": 11.0}
@@ -287,7 +287,7 @@ def test_beta_high_other_than_one_is_refused_not_ignored() -> None:
     """The filter's top hypothesis is fixed at 1: a setting that would be ignored must not start."""
     from pydantic import ValidationError
 
-    from service.settings import Settings
+    from service.runtime.settings import Settings
 
     assert Settings(beta_high=1).beta_high == 1.0
     with pytest.raises(ValidationError, match="beta_high"):

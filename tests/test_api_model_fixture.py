@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from models.contract import COL, COLUMNS
-from service.model_runtime import ModelCard, ValueModel
+from models.runtime import ModelCard, ValueModel
+from reach.contract import COL, COLUMNS
 from tests.fixtures.analytic_model import NAME, RANGES, disc, reference_value
 
 

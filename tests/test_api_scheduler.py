@@ -15,13 +15,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from service.engine import FRTEngine, Pose
-from service.exact_worker import ExactTask, start_pool
-from service.metrics import Metrics
-from service.model_runtime import ValueModel
-from service.scheduler import FRTKey, FRTScheduler, LRUCache
-from service.services import Services
-from service.settings import Settings
+from models.runtime import ValueModel
+from models.value_fields import engine_for
+from reach.engine import FRTEngine
+from reach.frames import Pose
+from service.runtime.exact_worker import ExactTask, start_pool
+from service.runtime.metrics import Metrics
+from service.runtime.scheduler import FRTKey, FRTScheduler, LRUCache
+from service.runtime.services import Services
+from service.runtime.settings import Settings
 
 
 @pytest.fixture
@@ -214,7 +216,7 @@ def test_a_newer_version_takes_its_agents_place_in_the_queue(scheduler: FRTSched
 
 @pytest.fixture(scope="module")
 def engine(analytic_model_path: Path) -> FRTEngine:
-    return FRTEngine(ValueModel.load(analytic_model_path))
+    return engine_for(ValueModel.load(analytic_model_path))
 
 
 BOUNDS = np.array([-0.3, -2.0, -0.2, -1.0, 0.3, 1.5, 0.25, 2.0])

@@ -526,5 +526,7 @@ def test_an_unreachable_store_makes_the_service_not_ready(start_server) -> None:
             "ready": False,
             "model": ready.json()["model"],
             "detail": "agent store unreachable",
+            "active": ready.json()["active"],
         }
         assert ready.json()["model"] is not None
+        assert ready.json()["active"]["geometry"][0] == "outer_bound"

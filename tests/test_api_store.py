@@ -9,8 +9,8 @@ import time
 
 import pytest
 
-from service.errors import StaleTimestampError
-from service.store import AgentState, AgentStore, InMemoryAgentStore, StoreFullError
+from service.api.errors import StaleTimestampError
+from service.runtime.store import AgentState, AgentStore, InMemoryAgentStore, StoreFullError
 
 
 class FakeClock:

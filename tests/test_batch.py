@@ -6,9 +6,10 @@ from pathlib import Path
 
 import numpy as np
 
-from service.batch import box_clearances, tube_clearances
-from service.engine import FRTEngine, Pose
-from service.model_runtime import ValueModel
+from models.runtime import ValueModel
+from models.value_fields import engine_for
+from reach.frames import Pose
+from service.flows.batch import box_clearances, tube_clearances
 
 BOUNDS = np.array([-0.3, -2.0, -0.2, -1.0, 0.3, 1.5, 0.25, 2.0])
 
@@ -29,7 +30,7 @@ def random_sets(build, rng: np.random.Generator, count: int) -> list:
 
 
 def test_batched_box_clearances_equal_the_sets_own(analytic_model_path: Path) -> None:
-    engine = FRTEngine(ValueModel.load(analytic_model_path))
+    engine = engine_for(ValueModel.load(analytic_model_path))
     rng = np.random.default_rng(3)
     sets = random_sets(engine.conservative, rng, 8)
     xy = rng.uniform(-30, 60, size=(40, 2))
@@ -42,7 +43,7 @@ def test_batched_box_clearances_equal_the_sets_own(analytic_model_path: Path) ->
 
 
 def test_batched_exact_clearances_equal_the_sets_own(analytic_model_path: Path) -> None:
-    engine = FRTEngine(ValueModel.load(analytic_model_path))
+    engine = engine_for(ValueModel.load(analytic_model_path))
     rng = np.random.default_rng(4)
     sets = random_sets(engine.exact, rng, 6)
     sets.append(sets[0])  # one set twice: its tubes are shared
@@ -63,9 +64,10 @@ def test_box_clearances_are_signed_distances_to_the_union_of_boxes(
     outside; inside, negative and at most as deep as in the union (the deepest single box)."""
     import shapely
 
-    from service.engine import signed_distance, to_human_frame
+    from reach.distances import signed_distance
+    from reach.frames import to_human_frame
 
-    engine = FRTEngine(ValueModel.load(analytic_model_path))
+    engine = engine_for(ValueModel.load(analytic_model_path))
     rng = np.random.default_rng(5)
     sets = random_sets(engine.conservative, rng, 6)
     xy = rng.uniform(-30, 60, size=(60, 2))

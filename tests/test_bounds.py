@@ -16,8 +16,8 @@ from hypothesis import strategies as st
 from scipy.optimize import linprog
 from scipy.stats import norm
 
-from models.contract import BOUND_COLUMNS
-from service.bounds import (
+from reach.contract import BOUND_COLUMNS
+from service.flows.bounds import (
     ControlBounds,
     PredictionError,
     clip_intervals,

@@ -15,7 +15,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.stats import multivariate_normal
 
-from service.confidence import (
+from service.flows.confidence import (
     Belief,
     hypotheses,
     prior_belief,

@@ -15,10 +15,12 @@ import numpy as np
 import pytest
 import shapely
 
-from models.contract import COL
+from models.runtime import ValueModel
 from models.sampling import sample_parameters
-from service.engine import FRTEngine, Pose, to_world_frame
-from service.model_runtime import ValueModel
+from models.value_fields import engine_for
+from reach.contract import COL
+from reach.engine import FRTEngine
+from reach.frames import Pose, to_world_frame
 
 MODEL = Path(__file__).resolve().parent.parent / "models" / "frt_unicycle.onnx"
 pytestmark = pytest.mark.skipif(not MODEL.exists(), reason="no shipped model yet")
@@ -28,7 +30,7 @@ TUBES = (1, 3, 10, 20, 30)
 
 @pytest.fixture(scope="module")
 def engine() -> FRTEngine:
-    return FRTEngine(ValueModel.load(MODEL))
+    return engine_for(ValueModel.load(MODEL))
 
 
 @pytest.mark.parametrize("row", range(12))

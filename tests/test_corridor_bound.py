@@ -9,16 +9,17 @@ import numpy as np
 import pytest
 import shapely
 
-from models.contract import COL, HORIZON_S, N_INPUTS
-from models.corridor_bound import sample_bounded_states, value_lower_bound
-from models.dynamics import initial_set_value
+from models.bounded_states import sample_bounded_states
 from models.eval_settings import SETTINGS
-from models.outer_bound import outer_bound
 from models.rollout import (
     sample_control_schedules,
     sample_reference_schedules,
 )
 from models.sampling import sample_parameters
+from reach.contract import COL, HORIZON_S, N_INPUTS
+from reach.corridors import value_lower_bound
+from reach.dynamics import initial_set_value
+from reach.outer_bound import outer_bound
 from tests.fixtures.trajectories import simulate
 
 
@@ -87,7 +88,7 @@ def _assert_bins_hold_simulated_positions(
     """At the recorded times ``every`` picks, the union of the bin polygons ``partition(v_start,
     bounds, times)`` gives (supports [J, B, M] in DIRECTIONS, empty [J, B]) contains the position
     of every one of 2000 simulated trajectories."""
-    from models.corridor_bound import DIRECTIONS
+    from reach.corridors import DIRECTIONS
 
     normals = np.stack([np.cos(DIRECTIONS), np.sin(DIRECTIONS)])
     for v_start, bounds in settings:
@@ -103,10 +104,10 @@ def _assert_bins_hold_simulated_positions(
 
 @pytest.mark.parametrize("seed", [0, 1])
 def test_partition_polygons_hold_every_simulated_position(seed: int) -> None:
-    """The union of a time's heading x speed bin polygons (models.corridor_bound.partition_supports)
+    """The union of a time's heading x speed bin polygons (reach.corridors.partition_supports)
     contains the position of every trajectory from the initial set at that time: wide, shrinking
     and random settings, switching and extremal schedules, edge starts."""
-    from models.corridor_bound import partition_supports
+    from reach.partition import partition_supports
 
     rng = np.random.default_rng(seed)
     names = ("urban_wide", "shrinking_wide_to_narrow", "growing_narrow_to_wide")
@@ -121,11 +122,11 @@ def test_partition_polygons_hold_every_simulated_position(seed: int) -> None:
 
 @pytest.mark.parametrize("seed", [0, 1])
 def test_speed_coupled_polygons_hold_every_simulated_position(seed: int) -> None:
-    """With the speed coupled over time (models.speed_lp: one linear programme per bin and
+    """With the speed coupled over time (reach.speed_programme: one linear programme per bin and
     direction), the union of a time's bin polygons still contains the position of every trajectory
     at that time: wide, shrinking, forced braking (u2 < 0 throughout), forced acceleration late
     (u2 > 0 at the end) and random settings; switching and extremal schedules, edge starts."""
-    from models.corridor_bound import partition_supports
+    from reach.partition import partition_supports
 
     rng = np.random.default_rng(seed)
     names = (
@@ -150,7 +151,8 @@ def test_waypoint_bins_hold_every_simulated_position_and_cut_the_notch_walls(see
     every trajectory at that time (wide, shrinking, fast and random settings; switching and
     extremal schedules, edge starts), and at 3 s it is smaller than without the split where
     steering bounds shrink from wide."""
-    from models.corridor_bound import DIRECTIONS, bins_union, partition_supports
+    from reach.corridors import DIRECTIONS
+    from reach.partition import bins_union, partition_supports
 
     rng = np.random.default_rng(seed)
     names = (("shrinking_steering_only", "urban_wide"), ("fast_wide_limits", "left_turn"))[seed]
@@ -188,10 +190,10 @@ def test_waypoint_bins_hold_every_simulated_position_and_cut_the_notch_walls(see
 
 
 def test_partition_tubes_hold_every_simulated_position_up_to_their_time() -> None:
-    """models.corridor_bound.partition_tubes (the evaluation's proven outer tube): every position
+    """reach.corridors.partition_tubes (the evaluation's proven outer tube): every position
     recorded every 0.02 s, between the 0.1 s instants too, lies in the tube of each t_end after
     it; a wide, a shrinking and a random setting, extremal schedules, edge starts."""
-    from models.corridor_bound import partition_tubes
+    from reach.partition import partition_tubes
 
     rng = np.random.default_rng(5)
     named = {s.name: s for s in SETTINGS}
@@ -230,7 +232,8 @@ def test_coupling_the_speed_cuts_where_independent_speed_ends_do_not() -> None:
     speed bin polygon with the speed's ends taken independently at every instant, outside all 16
     heading bin polygons with the speed coupled (to be fast while heading backwards the car must
     have kept its speed while it headed forwards, and moved forwards)."""
-    from models.corridor_bound import DIRECTIONS, partition_supports
+    from reach.corridors import DIRECTIONS
+    from reach.partition import partition_supports
 
     setting = {s.name: s for s in SETTINGS}["urban_wide"]
     point = np.array([-14.0, 4.0]) @ np.stack([np.cos(DIRECTIONS), np.sin(DIRECTIONS)])
@@ -245,7 +248,8 @@ def test_coupling_the_speed_cuts_where_independent_speed_ends_do_not() -> None:
 def test_partition_polygons_cut_into_the_notch_the_convex_polygon_covers() -> None:
     """urban_wide at t = 3 s: 20 m behind the start is inside the convex outer polygon and outside
     every one of 16 x 6 heading x speed bin polygons."""
-    from models.corridor_bound import DIRECTIONS, partition_supports
+    from reach.corridors import DIRECTIONS
+    from reach.partition import partition_supports
 
     setting = {s.name: s for s in SETTINGS}["urban_wide"]
     ob = outer_bound(setting.v_start, setting.bounds())
@@ -287,8 +291,9 @@ def test_a_swept_bin_holds_every_short_path_from_it(seed: int) -> None:
     (either way in time) whose heading stays within the bin's headings widened by ``turn`` ends
     inside the swept polygon, and inside the half swept that way in time alone (``before`` /
     ``after``); and sweeping is thinner than growing by a disc across the headings."""
-    from models.corridor_bound import DIRECTIONS, swept_supports
-    from models.outer_bound import half_plane_polygons
+    from reach.corridors import DIRECTIONS
+    from reach.partition import swept_supports
+    from reach.polygons import half_plane_polygons
 
     rng = np.random.default_rng(seed)
     for _ in range(20):

@@ -7,8 +7,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from models.contract import COL, COLUMNS, HORIZON_S, INITIAL_SET, N_INPUTS
-from models.dynamics import (
+from models.rollout import rk4_rollout
+from models.sampling import sample_parameters
+from reach.contract import COL, COLUMNS, HORIZON_S, INITIAL_SET, N_INPUTS
+from reach.dynamics import (
     heading_interval,
     initial_set_value,
     interpolate_bounds,
@@ -16,8 +18,6 @@ from models.dynamics import (
     unicycle_derivative,
     wrap_angle,
 )
-from models.rollout import rk4_rollout
-from models.sampling import sample_parameters
 
 finite = st.floats(-50, 50, allow_nan=False)
 

@@ -1,4 +1,4 @@
-"""FRTEngine(notch_cut=True): exact sets also cut to the speed-coupled partition where the car may
+"""engine_for(model, notch_cut=True): exact sets also cut to the speed-coupled partition where the car may
 head backwards. The cut must keep every simulated position the uncut set holds (tubes up to each
 time, slices at the instants, intervals between them), stay inside the uncut set, and cut."""
 
@@ -12,8 +12,11 @@ import shapely
 
 from models.eval_settings import SETTINGS
 from models.rollout import sample_reference_schedules
-from service.engine import NOTCH_STAGES, FRTEngine, Pose
-from service.model_runtime import ValueModel
+from models.runtime import ValueModel
+from models.value_fields import engine_for
+from reach.engine import FRTEngine
+from reach.frames import Pose
+from reach.notch import NOTCH_STAGES
 from tests.fixtures.trajectories import simulate
 
 MODEL = Path(__file__).resolve().parent.parent / "models" / "frt_unicycle.onnx"
@@ -23,7 +26,7 @@ NAMED = {s.name: s for s in SETTINGS}
 @pytest.fixture(scope="module")
 def engines() -> tuple[FRTEngine, FRTEngine]:
     model = ValueModel.load(MODEL, threads=1)
-    return FRTEngine(model), FRTEngine(model, notch_cut=True)
+    return engine_for(model), engine_for(model, notch_cut=True)
 
 
 def _covered(geometry: shapely.Geometry, state: tuple[np.ndarray, ...]) -> np.ndarray:
@@ -73,7 +76,7 @@ def test_worker_processes_cut_as_the_server_engine_does(engines) -> None:
     cut in a worker process as by the server's own engine, and comes back with every tube drawn but
     without the cut's regions (rebuilt on demand for slices, not kept for the garbage collector
     to walk)."""
-    from service.exact_worker import ExactTask, start_pool
+    from service.runtime.exact_worker import ExactTask, start_pool
 
     plain, _ = engines
     setting = NAMED["urban_wide"]

@@ -7,14 +7,15 @@ import math
 import numpy as np
 import shapely
 
-from models.outer_bound import SUPPORT_DIRECTIONS, convex_polygons
-from service.field_stack import (
+from reach.field_stack import (
     FAR,
     WindowStack,
     block_reduce,
     dilate_discs,
     span_reduce,
 )
+from reach.outer_bound import SUPPORT_DIRECTIONS
+from reach.polygons import convex_polygons
 
 
 def _disc_min(values: np.ndarray, radius: float) -> np.ndarray:

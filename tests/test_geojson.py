@@ -6,7 +6,7 @@ import json
 
 import shapely
 
-from service.engine import _geojson
+from reach.geojson import to_geojson
 
 
 def _round_trip(geojson: dict) -> shapely.Geometry:
@@ -18,7 +18,7 @@ def test_polygons_with_holes_and_multipolygons_round_trip_to_the_millimetre() ->
     holed = ring.difference(shapely.Point(3.5, -1.0).buffer(1.0))
     multi = shapely.union_all([holed, shapely.box(20.0, 20.0, 21.5, 22.25)])
     for geometry, kind in ((holed, "Polygon"), (multi, "MultiPolygon")):
-        out = _geojson(geometry)
+        out = to_geojson(geometry)
         assert out["type"] == kind
         back = _round_trip(out)
         assert back.symmetric_difference(geometry).area < 1e-3 * geometry.length
@@ -28,10 +28,10 @@ def test_polygons_with_holes_and_multipolygons_round_trip_to_the_millimetre() ->
 def test_parts_without_area_are_left_out_and_empty_sets_stay_valid() -> None:
     square = shapely.box(0.0, 0.0, 1.0, 1.0)
     collection = shapely.GeometryCollection([square, shapely.LineString([(5, 5), (6, 6)])])
-    out = _geojson(collection)
+    out = to_geojson(collection)
     assert out["type"] == "MultiPolygon" and len(out["coordinates"]) == 1
     assert _round_trip(out).equals(shapely.MultiPolygon([square]))
-    assert _geojson(shapely.Polygon()) == {"type": "MultiPolygon", "coordinates": []}
+    assert to_geojson(shapely.Polygon()) == {"type": "MultiPolygon", "coordinates": []}
 
 
 def _signed_area(ring: list) -> float:
@@ -48,7 +48,7 @@ def test_rings_follow_the_right_hand_rule() -> None:
     clockwise = shapely.Polygon(holed.exterior.coords[::-1], [holed.interiors[0].coords[::-1]])
     multi = shapely.MultiPolygon([clockwise, shapely.box(20.0, 20.0, 21.0, 21.0, ccw=False)])
     for geometry in (holed, clockwise, multi):
-        out = _geojson(geometry)
+        out = to_geojson(geometry)
         polygons = [out["coordinates"]] if out["type"] == "Polygon" else out["coordinates"]
         for rings in polygons:
             assert _signed_area(rings[0]) > 0

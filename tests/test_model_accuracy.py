@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from service.model_runtime import ValueModel, file_sha256
+from models.runtime import ValueModel, file_sha256
+from models.value_fields import ProjectionField, engine_for
 
 ROOT = Path(__file__).resolve().parent.parent
 MODEL = ROOT / "models" / "frt_unicycle.onnx"
@@ -70,10 +71,11 @@ def test_served_slices_contain_the_reachable_positions(states) -> None:
     """The engine's K at each fixture state's instant (the distilled projection, its level scaled by
     the outer box, cut to the outer polygon) holds that state's position: the calibration the
     service relies on, checked against rollouts it never saw."""
-    from service.engine import FRTEngine, Pose
+    from reach.frames import Pose
 
-    engine = FRTEngine(ValueModel.load(MODEL))
-    assert engine.use_projection and engine.level_per_scale is not None
+    engine = engine_for(ValueModel.load(MODEL))
+    assert isinstance(engine.value_field, ProjectionField)
+    assert engine.value_field.level_per_scale is not None
     rows = states["reachable"]
     missed = []
     for name in np.unique(states["setting"]):

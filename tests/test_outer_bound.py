@@ -6,20 +6,15 @@ import numpy as np
 import pytest
 import shapely
 
-from models.contract import COL
 from models.eval_settings import SETTINGS
-from models.outer_bound import (
-    convex_polygons,
-    cos_max_towards,
-    cos_range,
-    half_plane_polygons,
-    outer_bound,
-)
 from models.rollout import (
     sample_control_schedules,
     sample_reference_schedules,
 )
 from models.sampling import sample_parameters
+from reach.contract import COL
+from reach.outer_bound import cos_max_towards, cos_range, outer_bound
+from reach.polygons import convex_polygons, half_plane_polygons
 from tests.fixtures.trajectories import simulate
 
 

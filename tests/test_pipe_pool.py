@@ -7,7 +7,7 @@ from concurrent.futures import BrokenExecutor
 
 import pytest
 
-from service.pipe_pool import PipePool
+from service.runtime.pipe_pool import PipePool
 
 _STATE: dict[str, int] = {}
 

@@ -1,4 +1,4 @@
-"""Collision checks before observations on the event loop (service.priority)."""
+"""Collision checks before observations on the event loop (service.runtime.priority)."""
 
 from __future__ import annotations
 
@@ -7,11 +7,15 @@ from types import SimpleNamespace
 
 import pytest
 
-from service import agents, checks
-from service.errors import AgentNotFoundError
-from service.priority import ChecksFirst
-from service.schemas import CollisionCheckRequest, MultiCollisionCheckRequest, ObservationRequest
-from service.settings import Settings
+from service.api.errors import AgentNotFoundError
+from service.api.schemas import (
+    CollisionCheckRequest,
+    MultiCollisionCheckRequest,
+    ObservationRequest,
+)
+from service.flows import agents, checks
+from service.runtime.priority import ChecksFirst
+from service.runtime.settings import Settings
 from tests.fixtures.payloads import observation
 
 TRAJECTORY = [{"t": 0.1 * i, "x": 20.0, "y": 0.0} for i in range(3)]

@@ -9,8 +9,9 @@ import pytest
 
 from models.eval_settings import SETTINGS
 from models.projection import LEVEL_SLOPES, affine_level
-from service.engine import FRTEngine, Pose
-from service.model_runtime import ValueModel
+from models.runtime import ValueModel
+from models.value_fields import engine_for
+from reach.frames import Pose
 
 MODEL = Path(__file__).resolve().parent.parent / "models" / "frt_unicycle.onnx"
 
@@ -43,13 +44,14 @@ def test_the_engine_adds_the_level_offset_and_a_higher_level_gives_a_larger_set(
     """At a slope where the shipped network cuts the outer polygons, 0.5 m of offset keeps every
     tube inside the larger one and grows the tube where the network cuts."""
     model = ValueModel.load(MODEL)
-    low, high = FRTEngine(model), FRTEngine(model)
+    low, high = engine_for(model), engine_for(model)
     for engine, offset in ((low, 0.0), (high, 0.5)):
-        engine.level_per_scale, engine.level_offset_m = -0.05, offset
+        engine.value_field.level_per_scale, engine.value_field.level_offset_m = -0.05, offset
     setting = SETTINGS[5]
     ob = low.outer(setting.v_start, setting.bounds())
     rows = [10, 20, 30]
-    np.testing.assert_allclose(high.levels(ob, rows) - low.levels(ob, rows), 0.5)
+    boxes = ob.box_at[rows]
+    np.testing.assert_allclose(high.value_field.levels(boxes) - low.value_field.levels(boxes), 0.5)
     a = low.exact(Pose(0.0, 0.0, 0.0), setting.v_start, setting.bounds())
     b = high.exact(Pose(0.0, 0.0, 0.0), setting.v_start, setting.bounds())
     for j in (10, 20, 30):

@@ -21,11 +21,11 @@ import numpy as np
 import pytest
 import shapely
 
-from models.contract import COL, HORIZON_S, INITIAL_SET, N_INPUTS
 from models.eval_settings import SETTINGS, Setting, const
 from models.evaluate import simulate
-from models.outer_bound import outer_bound
 from models.rollout import rk4_rollout, sample_control_schedules, sample_initial_states
+from reach.contract import COL, HORIZON_S, INITIAL_SET, N_INPUTS
+from reach.outer_bound import outer_bound
 
 ROOT = Path(__file__).resolve().parent.parent
 MODEL = ROOT / "models" / "frt_unicycle.onnx"
@@ -108,10 +108,11 @@ def test_outer_bound_contains_the_exact_front(name: str) -> None:
 def test_served_tube_contains_the_exact_front(name: str) -> None:
     """Under-approximation is the failure that matters: the front points, reached at 1, 2 and 3 s,
     lie in the service's tube up to that time."""
-    from service.engine import FRTEngine, Pose
-    from service.model_runtime import ValueModel
+    from models.runtime import ValueModel
+    from models.value_fields import engine_for
+    from reach.frames import Pose
 
-    engine = FRTEngine(ValueModel.load(MODEL))
+    engine = engine_for(ValueModel.load(MODEL))
     v_start, w, a_lo, a_hi = _bounds(name)
     frt = engine.exact(Pose(0.0, 0.0, 0.0), v_start, _bound_columns(w, a_lo, a_hi))
     for t_end in (1.0, 2.0, 3.0):

@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 
 from models.eval_settings import SETTINGS
-from service.engine import FRTEngine, Pose
-from service.model_runtime import ValueModel
-from service.refine import coarse_nodes, coarse_to_fine, dilate
+from models.runtime import ValueModel
+from models.value_fields import engine_for
+from reach.frames import Pose
+from reach.refine import coarse_nodes, coarse_to_fine, dilate
 
 MODEL = Path(__file__).resolve().parent.parent / "models" / "frt_unicycle.onnx"
 
@@ -96,10 +97,10 @@ def test_refined_tubes_equal_the_full_evaluation(level_per_scale: float | None) 
     tubes equal the full evaluation's on several settings, never with more network evaluations (at the
     calibrated level, fewer than half)."""
     model = ValueModel.load(MODEL)
-    full, refined = FRTEngine(model, refine=False), FRTEngine(model, refine=True)
+    full, refined = engine_for(model, refine=False), engine_for(model, refine=True)
     if level_per_scale is not None:
         for engine in (full, refined):
-            engine.level_per_scale = level_per_scale
+            engine.value_field.level_per_scale = level_per_scale
     pose = Pose(3.0, -2.0, 0.7)
     cut_somewhere = False
     for setting in (SETTINGS[3], SETTINGS[5], SETTINGS[12], SETTINGS[15], SETTINGS[18]):

@@ -15,12 +15,15 @@ import numpy as np
 import pytest
 
 from models.eval_settings import SETTINGS
-from service.engine import NOTCH_STAGES, FRTEngine, Pose
-from service.exact_worker import ExactTask
-from service.metrics import Metrics
-from service.model_runtime import ValueModel
-from service.scheduler import FRTKey, FRTScheduler
-from service.services import refine_by_notch_cut
+from models.runtime import ValueModel
+from models.value_fields import engine_for
+from reach.engine import FRTEngine
+from reach.frames import Pose
+from reach.notch import NOTCH_STAGES
+from service.runtime.exact_worker import ExactTask
+from service.runtime.metrics import Metrics
+from service.runtime.scheduler import FRTKey, FRTScheduler
+from service.runtime.services import refine_by_notch_cut
 
 MODEL = Path(__file__).resolve().parent.parent / "models" / "frt_unicycle.onnx"
 NAMED = {s.name: s for s in SETTINGS}
@@ -243,7 +246,7 @@ def test_refinements_start_newest_first_unless_the_oldest_has_waited(
 ) -> None:
     """The version observed last has the most life left to be served, so its refinement goes
     first; one that has waited REFINE_OLDEST_AFTER_S goes before it."""
-    monkeypatch.setattr("service.scheduler.REFINE_OLDEST_AFTER_S", oldest_after_s)
+    monkeypatch.setattr("service.runtime.scheduler.REFINE_OLDEST_AFTER_S", oldest_after_s)
     gate = threading.Event()
     started: list[str] = []
 
@@ -348,7 +351,7 @@ def test_a_failed_refinement_keeps_the_ready_set(scheduler: FRTScheduler) -> Non
 
 @pytest.fixture(scope="module")
 def engine() -> FRTEngine:
-    return FRTEngine(ValueModel.load(MODEL, threads=1))
+    return engine_for(ValueModel.load(MODEL, threads=1))
 
 
 def test_the_service_refines_sets_that_may_turn_round_by_the_notch_cut(

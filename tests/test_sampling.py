@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from models.contract import BOUND_COLUMNS, COL, U1_LIMIT, U2_LIMIT, V_START_MAX
 from models.sampling import (
     sample_corner_parameters,
     sample_parameters,
     sample_restart_parameters,
     sample_training_batch,
 )
+from reach.contract import BOUND_COLUMNS, COL, U1_LIMIT, U2_LIMIT, V_START_MAX
 
 
 def _assert_admissible(x: np.ndarray) -> None:

@@ -2,7 +2,7 @@
 
 redis-server (append-only file on) and nginx come from Debian's packages (installed if missing);
 nginx runs docker/nginx.conf itself, with only the upstream addresses, the listen port and its temp
-paths rewritten. Three uvicorn replicas of ``service.app:app`` share agent state through Redis
+paths rewritten. Three uvicorn replicas of ``service.api.app:app`` share agent state through Redis
 (``FRT_STORE_URL``) and serve the analytic fixture model. Two loads run through nginx at once for
 ~34 s: the team's load harness (scripts/load.py: humans observed at 4 Hz, a planner checking all of
 them at 10 Hz, its own beta verification at the end) and this test's probes (one per human:
@@ -13,7 +13,7 @@ test meanwhile
 2. SIGKILLs Redis and restarts it on the same files (state comes back from the AOF).
 
 It asserts: no observation lost (each agent's beta, timestamp and FRT version on the server equal
-what the probe, and the harness, compute themselves with ``service.confidence`` from what they
+what the probe, and the harness, compute themselves with ``service.flows.confidence`` from what they
 sent), no answer wrong (every 200 carries the beta and FRT version of the agent's last acknowledged
 observation: no replica answers from stale state), every 5xx nginx logged was in flight to the killed
 replica or fell while Redis was down, and the survivors keep answering. It prints latency p50/p99
@@ -45,7 +45,7 @@ from typing import Any, ClassVar
 import httpx
 import pytest
 
-from service.confidence import Belief, hypotheses, prior_belief, update_belief
+from service.flows.confidence import Belief, hypotheses, prior_belief, update_belief
 from tests.fixtures.analytic_model import write_model
 from tests.test_deploy_files import NGINX_CONF, nginx_workdir, render_nginx_conf
 from tests.test_redis_store import RedisServer, free_port, require_commands
@@ -73,7 +73,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.timeout(170)]
 
 
 class Replica:
-    """One ``uvicorn service.app:app`` on a loopback port (what compose's ``frt`` runs)."""
+    """One ``uvicorn service.api.app:app`` on a loopback port (what compose's ``frt`` runs)."""
 
     def __init__(self, env: dict[str, str], log_path: Path) -> None:
         self.port = free_port()
@@ -82,7 +82,7 @@ class Replica:
         self._log = log_path.open("wb")
         self.proc = subprocess.Popen(
             [
-                sys.executable, "-m", "uvicorn", "service.app:app",
+                sys.executable, "-m", "uvicorn", "service.api.app:app",
                 "--host", "127.0.0.1", "--port", str(self.port),
                 "--log-level", "warning", "--no-access-log",
             ],

@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 import shapely
 
-from models.contract import COL, HORIZON_S, N_INPUTS
 from models.eval_settings import SETTINGS
 from models.rollout import (
     EDGE_SHARE,
@@ -19,8 +18,11 @@ from models.rollout import (
     sample_initial_states,
     sample_reference_schedules,
 )
-from service.engine import FRTEngine, Pose
-from service.model_runtime import ValueModel
+from models.runtime import ValueModel
+from models.value_fields import engine_for
+from reach.contract import COL, HORIZON_S, N_INPUTS
+from reach.engine import FRTEngine
+from reach.frames import Pose
 
 MODEL = Path(__file__).resolve().parent.parent / "models" / "frt_unicycle.onnx"
 pytestmark = pytest.mark.skipif(not MODEL.exists(), reason="no shipped model yet")
@@ -31,7 +33,7 @@ TIMES = (0.0, 0.05, 0.1, 0.37, 1.0, 1.234, 2.95, 3.0)
 
 @pytest.fixture(scope="module")
 def engine() -> FRTEngine:
-    return FRTEngine(ValueModel.load(MODEL))
+    return engine_for(ValueModel.load(MODEL))
 
 
 def positions_at(v_start: float, bounds: np.ndarray, t: float, n: int = 4000) -> np.ndarray:

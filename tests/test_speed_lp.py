@@ -8,8 +8,8 @@ import pytest
 from scipy.optimize import linprog
 from scipy.sparse import diags, vstack
 
-from models.outer_bound import cos_max_towards
-from models.speed_lp import corridor_gain, max_linear_over_profiles
+from reach.outer_bound import cos_max_towards
+from reach.speed_programme import corridor_gain, max_linear_over_profiles
 
 
 def highs_optimum(w, lo, hi, rise, fall) -> float:
@@ -104,7 +104,7 @@ def test_the_corridor_gain_is_the_programme_of_its_corridors_cosines(seed: int) 
     """Random heading corridors (narrow ones facing a direction or away from it, so that the
     objective keeps one sign, and wide ones that turn), node bounds, rates: each (row, direction)
     optimum is HiGHS's optimum of the programme whose weights the corridor's largest cosines give
-    (models.outer_bound.cos_max_towards), plus the chord excess; rows without a profile are
+    (reach.outer_bound.cos_max_towards), plus the chord excess; rows without a profile are
     empty."""
     rng = np.random.default_rng(100 + seed)
     rows, steps = 24, 20

@@ -12,12 +12,12 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from models.contract import COL, COLUMNS, N_INPUTS  # noqa: E402
-from models.dynamics import initial_set_value  # noqa: E402
 from models.export import export_run, parity  # noqa: E402
 from models.network import ValueNetwork  # noqa: E402
+from models.runtime import ValueModel  # noqa: E402
 from models.train import TrainConfig, train  # noqa: E402
-from service.model_runtime import ValueModel  # noqa: E402
+from reach.contract import COL, COLUMNS, N_INPUTS  # noqa: E402
+from reach.dynamics import initial_set_value  # noqa: E402
 
 SMOKE = Path(__file__).resolve().parent.parent / "models" / "configs" / "smoke.json"
 
@@ -54,7 +54,7 @@ def test_the_corridor_hinge_raises_the_value_where_it_is_bounded(smoke_run, tmp_
     """The hinge is relu(bound - V) on states with a proven lower bound on V; a step on it alone
     lifts V there. A run started from the smoke run's checkpoint with it configured logs it."""
     config, out = smoke_run
-    from models.corridor_bound import sample_bounded_states
+    from models.bounded_states import sample_bounded_states
     from models.loss import LossWeights, training_losses
 
     x, bound = sample_bounded_states(8, 32, np.random.default_rng(1))

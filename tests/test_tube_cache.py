@@ -10,9 +10,11 @@ import pytest
 import shapely
 
 from models.eval_settings import SETTINGS
-from models.outer_bound import convex_polygons
-from service.engine import SWEEPS_PER_WINDOW, FRTEngine, FRTSet, Pose
-from service.model_runtime import ValueModel
+from models.runtime import ValueModel
+from models.value_fields import engine_for
+from reach.frames import Pose
+from reach.polygons import convex_polygons
+from reach.sets import SWEEPS_PER_WINDOW, FRTSet
 
 MODEL = Path(__file__).resolve().parent.parent / "models" / "frt_unicycle.onnx"
 pytestmark = pytest.mark.skipif(not MODEL.exists(), reason="no shipped model yet")
@@ -21,7 +23,7 @@ pytestmark = pytest.mark.skipif(not MODEL.exists(), reason="no shipped model yet
 @pytest.mark.parametrize("name", ["stationary_wide_limits", "urban_wide", "growing_narrow_to_wide"])
 def test_tubes_do_not_depend_on_the_order_they_are_asked_in(name: str) -> None:
     setting = {s.name: s for s in SETTINGS}[name]
-    engine = FRTEngine(ValueModel.load(MODEL))
+    engine = engine_for(ValueModel.load(MODEL))
     pose = Pose(-4.0, 7.0, 2.5)
 
     def fresh():
@@ -47,7 +49,7 @@ def test_tubes_do_not_depend_on_the_order_they_are_asked_in(name: str) -> None:
 
 def test_the_outer_tube_is_the_union_of_its_windows() -> None:
     setting = {s.name: s for s in SETTINGS}["shrinking_wide_to_narrow"]
-    frt = FRTEngine(ValueModel.load(MODEL)).exact(
+    frt = engine_for(ValueModel.load(MODEL)).exact(
         Pose(0.0, 0.0, 0.0), setting.v_start, setting.bounds()
     )
     support = frt.bound.sweep_support

@@ -1,0 +1,389 @@
+"""The tight set: per-instant fields on one lattice, contoured, cut to the outer polygons.
+
+Each instant's field is max(W - level, P) with P the signed distance to the instant's outer polygon
+(W the value field where one cuts, else -inf: the polygon alone). Between instants a car moves at
+most v_max * slice_dt / 2 from the nearer one, so the interval's field is the two instants' minimum
+dilated by that much on the grid and cut to the interval's outer polygon; a tube is the running
+minimum of the intervals' fields, contoured once. Every set drawn is inside the union of outer
+polygons and, where it is cut (``reach.notch``), inside the partition's region.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+from typing import Any, overload
+
+import contourpy
+import numpy as np
+import shapely
+from shapely.geometry.base import BaseGeometry
+
+from reach.field_stack import FAR
+from reach.frames import Pose
+from reach.notch import NotchCut
+from reach.outer_bound import OuterBound
+from reach.partition import bins_union, grown_to_hold, swept_supports
+from reach.polygons import convex_polygons, half_plane_polygons
+from reach.sets import SWEEPS_PER_WINDOW, BoxTubeSet, FRTSet
+
+
+@dataclass(frozen=True)
+class Lattice:
+    """Nodes x0 + i * step, y0 + k * step shared by every slice of one set."""
+
+    x0: float
+    y0: float
+    step: float
+    nx: int
+    ny: int
+
+    def xs(self, i0: int, i1: int) -> np.ndarray:
+        return self.x0 + self.step * np.arange(i0, i1)
+
+    def ys(self, k0: int, k1: int) -> np.ndarray:
+        return self.y0 + self.step * np.arange(k0, k1)
+
+
+@dataclass(frozen=True)
+class SliceField:
+    """Field values on the lattice window [k0:k0+ny, i0:i0+nx]; +inf outside the window."""
+
+    k0: int
+    i0: int
+    values: np.ndarray  # [ny, nx]
+
+    def contour(self, lattice: Lattice) -> BaseGeometry:
+        ny, nx = self.values.shape
+        xs, ys = lattice.xs(self.i0, self.i0 + nx), lattice.ys(self.k0, self.k0 + ny)
+        return _filled_contour(xs, ys, self.values, 0.0)
+
+
+class SliceFields:
+    """The fields of every slice of one set, held as few objects: offsets in two integer arrays and
+    the values in a tuple of arrays (neither is traversed by the garbage collector, whose full
+    collections otherwise walked ~60 small objects per cached exact set: ~35 ms pauses with the
+    cache full). Indexing gives :class:`SliceField` views."""
+
+    def __init__(self, k0: np.ndarray, i0: np.ndarray, values: tuple[np.ndarray, ...]) -> None:
+        self.k0 = np.asarray(k0, dtype=np.int64)
+        self.i0 = np.asarray(i0, dtype=np.int64)
+        self.values = tuple(values)
+
+    def __len__(self) -> int:
+        return len(self.values)
+
+    @overload
+    def __getitem__(self, j: int) -> SliceField: ...
+
+    @overload
+    def __getitem__(self, j: slice) -> list[SliceField]: ...
+
+    def __getitem__(self, j: int | slice) -> SliceField | list[SliceField]:
+        if isinstance(j, slice):
+            return [self[i] for i in range(*j.indices(len(self)))]
+        return SliceField(int(self.k0[j]), int(self.i0[j]), self.values[j])
+
+
+#: A corner of an outer polygon turns by 2 pi / 16 = 22.5 degrees; the contour draws a chord across
+#: it between points on the grid lines within a cell diagonal of the corner, which cuts at most
+#: sqrt(2) sin(11.25 deg) = 0.28 node steps inside.
+CORNER_CHORD = 0.3
+
+
+#: An instant whose outer polygon holds fewer lattice nodes than this is not resolved by the grid
+#: (a small early set on a lattice sized for the late, large ones): its outer polygon stands for K.
+MIN_NODES_INSIDE = 16
+
+
+def running_minimum(fields: list[SliceField]) -> SliceField:
+    """The pointwise minimum of several windowed fields, on the window covering them all."""
+    k0 = min(f.k0 for f in fields)
+    i0 = min(f.i0 for f in fields)
+    k1 = max(f.k0 + f.values.shape[0] for f in fields)
+    i1 = max(f.i0 + f.values.shape[1] for f in fields)
+    out = np.full((k1 - k0, i1 - i0), FAR, dtype=np.float32)
+    for f in fields:
+        ny, nx = f.values.shape
+        window = out[f.k0 - k0 : f.k0 - k0 + ny, f.i0 - i0 : f.i0 - i0 + nx]
+        np.minimum(window, f.values, out=window)
+    return SliceField(k0, i0, out)
+
+
+class FieldTubeSet(FRTSet):
+    """The model's set from per-slice fields on one lattice; contours drawn lazily and cached.
+
+    Per slice j (instant s_j = j * slice_dt):
+
+    * ``instant[j]`` = max(W - level, P_j) with P_j the outer polygon at s_j (negative inside):
+      K at s_j is {instant_j <= 0};
+    * ``sweep[j]`` (j >= 1) = max(min(instant_(j-1), instant_j) grown by v_max * slice_dt / 2, Q_j)
+      with Q_j the outer polygons of [s_(j-1), s_j]: a position reached during that interval is
+      within v_max * dt / 2 of K at the nearer of its two ends, and inside Q_j. sweep[0] = instant[0],
+      the initial set.
+
+    Tube j is {min over i <= j of sweep_i <= 0} (the growth of instant_j spans one node step more,
+    so a thin part of the set between nodes is not lost), grown by the contour's corner chords and
+    cut to a union of outer polygons of [0, s_j], one per window of the conservative box tube,
+    whose box holds it.
+    """
+
+    def __init__(
+        self,
+        pose: Pose,
+        slice_dt: float,
+        horizon_s: float,
+        lattice: Lattice,
+        instant: SliceFields,
+        sweep: SliceFields,
+        bound: OuterBound,
+        bound_rows: list[int],
+        outer: BoxTubeSet,
+        coarse: np.ndarray | None = None,
+        notch: NotchCut | None = None,
+        notch_possible: bool = False,
+    ) -> None:
+        super().__init__(pose, slice_dt, horizon_s, len(instant), conservative=False)
+        #: If set, every set drawn is also cut to the partition (``_notch_*``).
+        self.notch = notch
+        #: Whether some instant's heading interval passes +-NOTCH_HEADING: a cut could tighten
+        #: this set (``FRTEngine.exact(notch_cut=True)``).
+        self.notch_possible = notch_possible
+        self._notch_regions: dict[tuple[int, bool, bool], BaseGeometry] = {}
+        self._notch_tubes: dict[int, BaseGeometry] = {}
+        self.lattice = lattice
+        self.instant = instant
+        self.sweep = sweep
+        self.bound = bound
+        self.bound_rows = bound_rows
+        self.outer = outer
+        #: Instants whose outer polygon holds fewer than MIN_NODES_INSIDE lattice nodes: the grid
+        #: cannot resolve K there, so the outer polygon stands for it.
+        self.coarse = np.zeros(len(instant), dtype=bool) if coarse is None else coarse
+        self._tubes: dict[int, BaseGeometry] = {}
+        self._slices: dict[int, BaseGeometry] = {}
+        self._intervals: dict[int, BaseGeometry] = {}
+        #: Outer polygons of the windows (SWEEPS_PER_WINDOW), and their unions by window count.
+        self._outer_windows: np.ndarray | None = None
+        self._outer_unions: dict[int, BaseGeometry] = {}
+        self._hulls: dict[int, BaseGeometry] = {}
+        self._lock = threading.Lock()
+
+    def __getstate__(self) -> dict[str, Any]:
+        """What crosses a process boundary: everything but the lock and the caches rebuilt on
+        demand (the outer windows' and the notch cut's polygons, which would stay in the
+        receiver's cache as objects its garbage collector walks; a cut set's tubes are all drawn,
+        so the regions they were drawn from are not needed there)."""
+        state = vars(self).copy()
+        del state["_lock"]
+        state.update(_outer_windows=None, _notch_regions={}, _notch_tubes={})
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        vars(self).update(state)
+        self._lock = threading.Lock()
+
+    def _grow(self, k_set: BaseGeometry) -> BaseGeometry:
+        return k_set.buffer(self.lattice.step / 2, quad_segs=4) if not k_set.is_empty else k_set
+
+    def tube(self, j: int) -> BaseGeometry:
+        with self._lock:
+            cached = self._tubes.get(j)
+        if cached is not None:
+            return cached
+        outer = self.outer_tube(j)
+        k_set = running_minimum(self.sweep[: j + 1]).contour(self.lattice)
+        if not k_set.is_empty:
+            # The grid dilation already covers the node sampling; this covers the chords that
+            # linear interpolation draws across the outer polygons' corners, and the cut to the
+            # outer polygons (exact geometry, not sampled) takes the excess back along their edges.
+            k_set = k_set.buffer(CORNER_CHORD * self.lattice.step, quad_segs=4)
+            k_set = k_set.intersection(outer)
+        unresolved = self._unresolved_sweeps(j)
+        if unresolved:
+            k_set = shapely.union(k_set, self._unresolved_hull(unresolved).intersection(outer))
+        if self.notch is not None:
+            k_set = k_set.intersection(self._notch_tube(j))
+        with self._lock:
+            self._tubes[j] = k_set
+        return k_set
+
+    def _notch_region(self, j: int, before: bool = True, after: bool = True) -> BaseGeometry:
+        """Every position reachable within half an instant of s_j, ``before`` and/or ``after`` it
+        (neither: at s_j itself): where the set is cut at s_j, the partition's bins each swept
+        along its headings by how far a car moves in half an instant (``swept_supports``); else
+        the instant's convex outer polygon grown by as much either way."""
+        notch = self.notch
+        assert notch is not None
+        key = (j, before, after) if notch.cut[j] else (j, True, True)
+        with self._lock:
+            cached = self._notch_regions.get(key)
+        if cached is not None:
+            return cached
+        reach = float(notch.reach_m[j])
+        if notch.cut[j]:
+            i = int(np.count_nonzero(notch.cut[:j]))  # its row among the cut instants
+            swept = swept_supports(
+                notch.supports[i],
+                notch.headings[i],
+                reach,
+                notch.turn_rad,
+                notch.directions,
+                before=before,
+                after=after,
+            )
+            region = bins_union(swept, notch.empty[i], notch.directions)
+        else:
+            polygon = shapely.Polygon(self.bound.polygons_at([self.bound_rows[j]])[0])
+            region = grown_to_hold(polygon, reach)
+        with self._lock:
+            self._notch_regions[key] = region
+        return region
+
+    def _notch_tube(self, j: int) -> BaseGeometry:
+        """Every position reached during [0, s_j]: the tube to s_(j-1), the half instant after
+        s_(j-1) and the half instant before s_j (grown from the largest tube already built;
+        nothing after s_j, and each instant's two halves apart, which is thinner than both
+        together where the car heads away from the set)."""
+        with self._lock:
+            built = dict(self._notch_tubes)
+        if j in built:
+            return built[j]
+        start = max((i for i in built if i < j), default=-1)
+        tube = built[start] if start >= 0 else self._notch_region(0, after=False)
+        for i in range(max(start, 0) + 1, j + 1):
+            tube = shapely.union_all(
+                [tube, self._notch_region(i - 1, before=False), self._notch_region(i, after=False)]
+            )
+        with self._lock:
+            self._notch_tubes[j] = tube
+        return tube
+
+    def missing_tubes(self, indices: list[int]) -> list[int]:
+        with self._lock:
+            return sorted(set(indices).difference(self._tubes))
+
+    def nearest_built_tube(self, j: int) -> int:
+        with self._lock:
+            later = [i for i in self._tubes if i >= j]
+        return min(later) if later else self.n_slices - 1
+
+    def _unresolved_hull(self, sweeps: list[int]) -> BaseGeometry:
+        """The polygon of the support functions' maximum over ``sweeps``, which contains their
+        hull (the same for every tube past the last unresolved instant: built once). The lists of
+        one set are prefixes of each other (``_unresolved_sweeps``), so their length names them."""
+        key = len(sweeps)
+        with self._lock:
+            hull = self._hulls.get(key)
+        if hull is None:
+            hull = self._sweeps_polygon(sweeps)
+            with self._lock:
+                self._hulls[key] = hull
+        return hull
+
+    def _sweeps_polygon(self, sweeps: list[int] | slice) -> BaseGeometry:
+        """The polygon of the support functions' maximum over ``sweeps``: it holds every position
+        reached during them."""
+        support = self.bound.sweep_support[sweeps].max(axis=0)
+        return shapely.Polygon(half_plane_polygons(self.bound.directions, support[None])[0])
+
+    def _unresolved_sweeps(self, j: int) -> list[int]:
+        """Outer-bound sweeps of the intervals up to s_j that touch an unresolved instant."""
+        k = self.bound_rows[1] - self.bound_rows[0] if len(self.bound_rows) > 1 else 1
+        out: list[int] = []
+        for i in range(1, j + 1):
+            if self.coarse[i] or self.coarse[i - 1]:
+                out.extend(range(self.bound_rows[i] - k, self.bound_rows[i]))
+        return out
+
+    def outer_tube(self, j: int) -> BaseGeometry:
+        """A union of outer polygons that contains every position reached during [0, s_j]: one
+        polygon per window of ``SWEEPS_PER_WINDOW`` sweeps (the support functions' maximum over
+        them), inside the conservative set's box of that window.
+
+        The windows' polygons are built once per set and the unions grow from the largest one
+        already built (checks ask for many tubes of one set, mostly in increasing order)."""
+        n = self.bound_rows[j]
+        if n == 0:
+            return self.outer.tube(0)
+        chunk = SWEEPS_PER_WINDOW
+        support = self.bound.sweep_support
+        if n % chunk:  # a partial last window: not one of the shared windows
+            windows = np.stack(
+                [support[a : min(a + chunk, n)].max(axis=0) for a in range(0, n, chunk)]
+            )
+            return shapely.union_all(convex_polygons(self.bound.directions, windows))
+        count = n // chunk
+        with self._lock:
+            polygons = self._outer_windows
+            built = dict(self._outer_unions)
+        if polygons is None:
+            full = len(support) // chunk
+            windows = support[: full * chunk].reshape(full, chunk, -1).max(axis=1)
+            polygons = convex_polygons(self.bound.directions, windows)
+        if count in built:
+            union = built[count]
+        else:
+            start = max((c for c in built if c < count), default=0)
+            parts = list(polygons[start:count])
+            union = shapely.union_all(parts if start == 0 else [built[start], *parts])
+        with self._lock:
+            self._outer_windows = polygons
+            self._outer_unions[count] = union
+        return union
+
+    def slice(self, j: int) -> BaseGeometry:
+        with self._lock:
+            cached = self._slices.get(j)
+        if cached is not None:
+            return cached
+        k_set = self._grow(self.instant[j].contour(self.lattice))
+        if self.coarse[j] or not k_set.is_empty:
+            polygon = shapely.Polygon(self.bound.polygons_at([self.bound_rows[j]])[0])
+            k_set = polygon if self.coarse[j] else k_set.intersection(polygon)
+        if self.notch is not None and self.notch.cut[j]:
+            k_set = k_set.intersection(self._notch_region(j, before=False, after=False))
+        with self._lock:
+            self._slices[j] = k_set
+        return k_set
+
+    def interval(self, j: int) -> BaseGeometry:
+        """K over [s_(j-1), s_j]: {sweep_j <= 0} grown by the contour's corner chords and cut to
+        the outer polygon of that window, or that polygon if either instant is unresolved."""
+        j = max(j, 1)
+        with self._lock:
+            cached = self._intervals.get(j)
+        if cached is not None:
+            return cached
+        polygon = self._sweeps_polygon(slice(self.bound_rows[j - 1], self.bound_rows[j]))
+        if self.coarse[j] or self.coarse[j - 1]:
+            k_set = polygon
+        else:
+            k_set = self.sweep[j].contour(self.lattice)
+            if not k_set.is_empty:
+                k_set = k_set.buffer(CORNER_CHORD * self.lattice.step, quad_segs=4)
+            k_set = k_set.intersection(polygon)
+        if self.notch is not None and (self.notch.cut[j] or self.notch.cut[j - 1]):
+            k_set = k_set.intersection(
+                shapely.union(
+                    self._notch_region(j - 1, before=False), self._notch_region(j, after=False)
+                )
+            )
+        with self._lock:
+            self._intervals[j] = k_set
+        return k_set
+
+
+def _filled_contour(xs: np.ndarray, ys: np.ndarray, z: np.ndarray, level: float) -> BaseGeometry:
+    """The region {z <= level} of a node grid as a shapely geometry."""
+    generator = contourpy.contour_generator(xs, ys, z, fill_type="OuterOffset")
+    points, offsets = generator.filled(-np.inf, level)
+    polygons = []
+    for pts, off in zip(points, offsets, strict=True):
+        rings = [pts[off[i] : off[i + 1]] for i in range(len(off) - 1)]
+        rings = [r for r in rings if len(r) >= 4]
+        if rings:
+            polygons.append(shapely.Polygon(rings[0], rings[1:]))
+    if not polygons:
+        return shapely.Polygon()
+    return shapely.make_valid(shapely.union_all(polygons))

@@ -1,0 +1,37 @@
+"""Collision checks of a robot trajectory against one agent or several."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Request
+
+from service.api.middleware import arrival_time
+from service.api.routes.model_json import ModelJSONResponse
+from service.api.routes.params import AgentIdPath, ServicesDep
+from service.api.schemas import (
+    CollisionCheckRequest,
+    CollisionCheckResponse,
+    MultiCollisionCheckRequest,
+    MultiCollisionCheckResponse,
+)
+from service.flows import checks
+
+router = APIRouter(prefix="/v1", tags=["collision"])
+
+
+@router.post("/agents/{agent_id}/collision-check", response_model=CollisionCheckResponse)
+async def check_agent(
+    agent_id: AgentIdPath, body: CollisionCheckRequest, request: Request, services: ServicesDep
+) -> ModelJSONResponse:
+    """Is the trajectory inside C = K ⊕ R_col? Answers within ``deadline_ms``, conservatively if
+    the exact set is not ready."""
+    answer = await checks.check_agent(services, agent_id, body, arrival_time(request.scope))
+    return ModelJSONResponse(answer)
+
+
+@router.post("/collision-check", response_model=MultiCollisionCheckResponse)
+async def check_many(
+    body: MultiCollisionCheckRequest, request: Request, services: ServicesDep
+) -> ModelJSONResponse:
+    """The same check against several agents (``agent_ids``) or all of them (``null``)."""
+    answer = await checks.check_agents_at_once(services, body, arrival_time(request.scope))
+    return ModelJSONResponse(answer)

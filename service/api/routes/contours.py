@@ -1,0 +1,36 @@
+"""``GET /v1/agents/{agent_id}/frt``: GeoJSON contours of K and C."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Query
+
+from service.api.routes.params import AgentIdPath, ServicesDep, joined
+from service.api.schemas import ContoursResponse
+from service.flows import contours
+
+router = APIRouter(prefix="/v1", tags=["frt"])
+
+
+@router.get("/agents/{agent_id}/frt", response_model=ContoursResponse)
+async def agent_contours(
+    agent_id: AgentIdPath,
+    services: ServicesDep,
+    slices: Annotated[
+        list[str] | None,
+        Query(description="comma-separated seconds after the observation (repeats add to it)"),
+    ] = None,
+    include: Annotated[
+        list[str] | None, Query(description="comma-separated subset of K,C (default: both)")
+    ] = None,
+    tube: Annotated[bool, Query(description="include the whole-horizon tube")] = True,
+    collision_radius: Annotated[
+        float | None, Query(ge=0.0, le=100.0, description="default: the agent's R_col")
+    ] = None,
+) -> ContoursResponse:
+    """The whole-horizon tube and the requested time slices, in the world frame."""
+    query = contours.parse_query(
+        joined("slices", slices, 4096), joined("include", include, 16), tube
+    )
+    return await contours.agent_contours(services, agent_id, query, collision_radius)

@@ -1,0 +1,385 @@
+"""Request and response models of every endpoint in API.md (pydantic v2).
+
+Requests forbid unknown fields and non-finite numbers, so a typo or a NaN is a 422 that names the
+field. Array lengths have hard caps here (they bound parsing and show in the OpenAPI schema); the
+tighter limits of the server settings (``max_prediction_steps``, ``max_trajectory_points``,
+``max_agents_per_check``, ``max_slices``) are enforced by :mod:`service.api.limits`.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from reach.contract import BOUND_COLUMNS
+
+#: Hard caps on array lengths (the settings may only lower them).
+PREDICTION_STEPS_CAP = 4096
+TRAJECTORY_POINTS_CAP = 100_000
+AGENTS_PER_CHECK_CAP = 10_000
+SLICES_CAP = 256
+
+#: Sanity bounds on magnitudes (metres, seconds, radians); finer ranges come from the model card.
+COORD_MAX = 1e7
+TIME_MAX = 1e12
+ANGLE_MAX = 1e4
+SPEED_MAX = 1e3
+CONTROL_MAX = 1e3
+
+AGENT_ID_PATTERN = r"^[A-Za-z0-9_.:\-]{1,128}$"
+AgentId = Annotated[str, Field(pattern=AGENT_ID_PATTERN, description="1-128 of [A-Za-z0-9_.:-]")]
+Coord = Annotated[float, Field(ge=-COORD_MAX, le=COORD_MAX)]
+Time = Annotated[float, Field(ge=-TIME_MAX, le=TIME_MAX)]
+Control = Annotated[float, Field(ge=-CONTROL_MAX, le=CONTROL_MAX)]
+Vec2 = Annotated[list[Control], Field(min_length=2, max_length=2)]
+Mat2 = Annotated[
+    list[Annotated[list[float], Field(min_length=2, max_length=2)]],
+    Field(min_length=2, max_length=2),
+]
+Radius = Annotated[float, Field(ge=0.0, le=100.0, description="metres")]
+Mode = Literal["tube", "time_indexed"]
+BoundsFit = Literal["envelope", "endpoints"]
+Part = Literal["K", "C"]
+#: A GeoJSON geometry object (``Polygon`` or ``MultiPolygon``) in the world frame.
+GeoJSON = dict[str, Any]
+
+
+class Request(BaseModel):
+    """A request body: unknown fields, non-finite numbers and numbers sent as strings or booleans
+    are errors that name the field (strict: "1" and true are not silently read as 1.0)."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True)
+
+
+class Response(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+# ----------------------------------------------------------------------------------- shared parts
+
+
+class HumanState(Request):
+    """The human's state in the world frame."""
+
+    x: Coord
+    y: Coord
+    heading: float = Field(ge=-ANGLE_MAX, le=ANGLE_MAX, description="radians from +x, CCW")
+    speed: float = Field(ge=0.0, le=SPEED_MAX, description="m/s, never negative")
+
+
+class ObservedAction(Request):
+    steering_rate: Control
+    acceleration: Control
+
+
+class Prediction(Request):
+    """A predictor's Gaussian over the human's controls, one step per ``dt``."""
+
+    dt: float = Field(gt=0.0, le=60.0, description="seconds between steps")
+    mean: list[Vec2] = Field(min_length=1, max_length=PREDICTION_STEPS_CAP)
+    cov: list[Mat2] = Field(min_length=1, max_length=PREDICTION_STEPS_CAP)
+
+
+class AgentConfig(Request):
+    """Per-agent settings; omitted fields keep the agent's (or the server's) values."""
+
+    beta_low: float | None = Field(None, gt=0.0, lt=1.0)
+    gamma: float | None = Field(None, gt=0.0, lt=1.0)
+    epsilon: float | None = Field(None, ge=0.0, lt=1.0)
+    collision_radius: Radius | None = None
+    bounds_fit: BoundsFit | None = None
+
+
+class EffectiveConfig(Response):
+    beta_low: float
+    beta_high: float
+    gamma: float
+    epsilon: float
+    collision_radius: float
+    bounds_fit: str
+
+
+class ControlBoundsIn(Request):
+    """Start and end control bounds, linearly interpolated over the horizon (model contract order)."""
+
+    u1_min_start: Control
+    u2_min_start: Control
+    u1_min_end: Control
+    u2_min_end: Control
+    u1_max_start: Control
+    u2_max_start: Control
+    u1_max_end: Control
+    u2_max_end: Control
+
+    @model_validator(mode="after")
+    def _ordered(self) -> ControlBoundsIn:
+        for dim in ("u1", "u2"):
+            for end in ("start", "end"):
+                lo, hi = getattr(self, f"{dim}_min_{end}"), getattr(self, f"{dim}_max_{end}")
+                if lo > hi:
+                    raise ValueError(f"{dim}_min_{end} ({lo}) is above {dim}_max_{end} ({hi})")
+        return self
+
+    def as_list(self) -> list[float]:
+        return [float(getattr(self, name)) for name in BOUND_COLUMNS]
+
+
+class ControlBoundsOut(Response):
+    u1_min_start: float
+    u2_min_start: float
+    u1_min_end: float
+    u2_min_end: float
+    u1_max_start: float
+    u2_max_start: float
+    u1_max_end: float
+    u2_max_end: float
+
+    @classmethod
+    def from_list(cls, values: list[float]) -> ControlBoundsOut:
+        return cls(**dict(zip(BOUND_COLUMNS, (float(v) for v in values), strict=True)))
+
+
+class BeliefOut(Response):
+    """Probability of each hypothesis (or, as ``hypotheses``, the two beta values)."""
+
+    beta_low: float
+    beta_high: float
+
+
+class TrajectoryPoint(Request):
+    t: Time = Field(description="seconds, on the observations' clock")
+    x: Coord
+    y: Coord
+
+
+Trajectory = Annotated[list[TrajectoryPoint], Field(min_length=1, max_length=TRAJECTORY_POINTS_CAP)]
+
+
+class CollisionAnswer(Response):
+    collision: bool
+    first_collision_index: int | None
+    first_collision_time: float | None
+    clearance: list[float] = Field(
+        description="distance to K minus R_col per point; < 0 inside C (a conservative answer "
+        "measures to the set that contains K, and inside it may state less than the full depth)"
+    )
+
+
+# ------------------------------------------------------------------------------------- agents
+
+
+class ObservationRequest(Request):
+    timestamp: Time
+    state: HumanState
+    observed_action: ObservedAction | None = Field(
+        None, description="the action taken since the previous observation; null on the first"
+    )
+    prediction: Prediction
+    config: AgentConfig | None = None
+
+
+class ObservationResponse(Response):
+    agent_id: str
+    timestamp: float
+    beta: float
+    belief: BeliefOut
+    control_bounds: ControlBoundsOut
+    frt_version: int
+    action_scored: bool = Field(description="whether observed_action updated the belief")
+    frt_ready: bool = Field(
+        False, description="whether the exact FRT of this version is computed (see wait_frt_ms)"
+    )
+
+
+class AgentResponse(Response):
+    agent_id: str
+    timestamp: float
+    state: dict[str, float] = Field(description="pose and speed at the last observation")
+    beta: float
+    belief: BeliefOut
+    hypotheses: BeliefOut = Field(description="the beta value of each hypothesis")
+    control_bounds: ControlBoundsOut
+    frt_version: int
+    frt_ready: bool = Field(description="whether the exact FRT of this version is computed")
+    frt_refinement: Literal["not_needed", "pending", "done", "failed"] | None = Field(
+        None,
+        description="once the exact FRT is ready: whether it is being tightened in the background "
+        "(an agent that may turn round: its set cut to the speed-coupled partition, "
+        "FRT_FRT_NOTCH_CUT, in stages, quick then fine), and whether that is done (no stage to "
+        "come: the last served, or the fine one skipped because it would have landed after the "
+        "agent's next observation; frt_refinement_stage says which), or failed (the served set "
+        "then stays the one before, which contains the cut one); null before",
+    )
+    frt_refinement_stage: int | None = Field(
+        None,
+        description="once the exact FRT is ready: how many stages of the notch cut the served set "
+        "has had (0: uncut; the last stage means frt_refinement is done); null before",
+    )
+    config: EffectiveConfig
+
+
+class DeleteResponse(Response):
+    agent_id: str
+    deleted: bool
+
+
+# ---------------------------------------------------------------------------- collision checks
+
+
+class CollisionCheckRequest(Request):
+    trajectory: Trajectory
+    mode: Mode = Field(
+        "tube",
+        description="tube: every point against the whole-horizon set; time_indexed: a point at "
+        "time t against the tube up to t",
+    )
+    collision_radius: Radius | None = Field(None, description="default: the agent's R_col")
+    deadline_ms: float | None = Field(
+        None, gt=0.0, le=60_000.0, description="default: the server's; from the request's arrival"
+    )
+
+
+class CollisionCheckResponse(CollisionAnswer):
+    agent_id: str
+    mode: Mode
+    collision_radius: float
+    beta: float
+    frt_version: int
+    conservative: bool = Field(
+        description="answered from a set containing the exact one: the outer bound while the exact "
+        "set is late or there is no time left to measure it, or (time_indexed) tubes ending later "
+        "than the points' own while those are not drawn in time"
+    )
+    horizon_end: float = Field(description="time after which the FRT says nothing")
+
+
+class MultiCollisionCheckRequest(CollisionCheckRequest):
+    agent_ids: list[AgentId] | None = Field(
+        None, max_length=AGENTS_PER_CHECK_CAP, description="null: every known agent"
+    )
+
+
+class MultiCollisionCheckResponse(Response):
+    collision: bool = Field(description="any agent in collision")
+    conservative: bool = Field(description="any answer conservative")
+    results: list[CollisionCheckResponse]
+    missing: list[str] = Field(description="requested agents that are unknown")
+
+
+# ------------------------------------------------------------------------------------ contours
+
+
+class ContourQuery(Request):
+    slices: list[float] = Field(
+        default_factory=list,
+        max_length=SLICES_CAP,
+        description="seconds after the observation; the set at each time: on the engine's 0.1 s "
+        "grid the set at that instant, between two instants the set over the interval between "
+        "them, which holds the set at t",
+    )
+    include: list[Part] = Field(default_factory=lambda: ["K", "C"], min_length=1, max_length=2)
+    tube: bool = True
+
+
+class ContourPair(Response):
+    K: GeoJSON | None = None
+    C: GeoJSON | None = None
+
+
+class ContourSlice(ContourPair):
+    t: float = Field(description="seconds after the observation")
+    time: float = Field(description="on the observations' clock")
+
+
+class Contours(Response):
+    tube: ContourPair | None
+    slices: list[ContourSlice]
+
+
+class ContoursResponse(Contours):
+    agent_id: str
+    frt_version: int
+    timestamp: float
+    horizon_s: float
+    collision_radius: float
+    conservative: bool
+
+
+# ------------------------------------------------------------------------------- stateless FRT
+
+
+class FRTRequest(Request):
+    """State plus either control bounds or a prediction and beta; contours and/or a check out.
+
+    Exactly one of ``control_bounds`` and ``prediction`` (which needs ``beta``) must be given; the
+    service checks that so the 422 can name the field.
+    """
+
+    timestamp: Time = Field(0.0, description="clock of the trajectory's t")
+    state: HumanState
+    control_bounds: ControlBoundsIn | None = None
+    prediction: Prediction | None = None
+    beta: float | None = Field(
+        None, gt=0.0, le=1.0, description="confidence in the prediction: covariance / beta"
+    )
+    gamma: float | None = Field(None, gt=0.0, lt=1.0)
+    bounds_fit: BoundsFit | None = None
+    collision_radius: Radius | None = None
+    contours: ContourQuery | None = Field(None, description="default: the tube when no trajectory")
+    trajectory: Trajectory | None = None
+    mode: Mode = "tube"
+    deadline_ms: float | None = Field(
+        None, gt=0.0, le=60_000.0, description="answer conservatively if the exact set is late"
+    )
+
+
+class FRTResponse(Response):
+    control_bounds: ControlBoundsOut
+    beta: float | None
+    horizon_s: float
+    collision_radius: float
+    conservative: bool
+    contours: Contours | None
+    collision: CollisionAnswer | None
+
+
+# --------------------------------------------------------------------------------- model, health
+
+
+class NetworkPart(Response):
+    loaded: bool
+    active: bool = Field(description="whether the network is evaluated when a set is built")
+    reason: str
+
+
+class ActiveParts(Response):
+    """Which parts build the sets the service serves."""
+
+    geometry: list[str] = Field(
+        description="the certified geometry: 'outer_bound' always, 'notch_partition' when sets "
+        "that may turn round are refined by the speed-coupled partition"
+    )
+    value_network: NetworkPart
+
+
+class ModelCardResponse(Response):
+    name: str
+    semantics: str
+    delta: float
+    horizon_s: float
+    ranges: dict[str, list[float]]
+    initial_set: dict[str, Any]
+    card: dict[str, Any] = Field(description="the whole model card")
+    active: ActiveParts
+
+
+class Health(Response):
+    status: str
+
+
+class Readiness(Response):
+    ready: bool
+    model: str | None
+    detail: str | None = None
+    active: ActiveParts | None = None

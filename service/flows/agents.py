@@ -1,0 +1,249 @@
+"""Agents: the observation flow (API.md, "Observation"), the agent view, forgetting an agent.
+
+One observation: validate -> score the observed action against the first step of the previous
+prediction (epsilon-static transition, then Bayes) -> beta -> control bounds of the new prediction ->
+check them against the model's trained ranges -> store the new state atomically with the timestamp
+check -> start the exact FRT of the new version in the background and answer at once.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from reach.engine import FRTEngine, OutOfRangeError
+from service.api.errors import AgentNotFoundError, FieldError, StaleTimestampError
+from service.api.limits import check_prediction_steps
+from service.api.schemas import (
+    AgentResponse,
+    BeliefOut,
+    ControlBoundsOut,
+    DeleteResponse,
+    EffectiveConfig,
+    ObservationRequest,
+    ObservationResponse,
+    Prediction,
+)
+from service.flows.bounds import PredictionError, control_bounds, validate_prediction
+from service.flows.confidence import Belief, hypotheses, prior_belief, update_belief
+from service.runtime.services import Services
+from service.runtime.settings import Settings
+from service.runtime.store import AgentState
+
+CONFIG_KEYS = ("beta_low", "gamma", "epsilon", "collision_radius", "bounds_fit")
+
+
+def effective_config(settings: Settings, overrides: dict[str, Any]) -> dict[str, Any]:
+    """Server settings overlaid with an agent's overrides."""
+    config = {key: getattr(settings, key) for key in CONFIG_KEYS}
+    config.update({k: v for k, v in overrides.items() if k in CONFIG_KEYS and v is not None})
+    return config
+
+
+def prediction_error(exc: PredictionError) -> FieldError:
+    """``prediction.cov[3]`` -> a 422 on ``prediction.cov.3``."""
+    field = exc.field.replace("[", ".").replace("]", "")
+    return FieldError(field, exc.message)
+
+
+def validated_prediction(
+    prediction: Prediction, settings: Settings, field: str = "prediction"
+) -> tuple[np.ndarray, np.ndarray]:
+    check_prediction_steps(field, prediction.mean, settings)
+    try:
+        return validate_prediction(
+            prediction.mean, prediction.cov, prediction.dt, settings.max_prediction_steps
+        )
+    except PredictionError as exc:
+        raise prediction_error(exc) from None
+
+
+def fit_bounds(
+    mean: np.ndarray,
+    cov: np.ndarray,
+    dt: float,
+    beta: float,
+    gamma: float,
+    bounds_fit: str,
+    settings: Settings,
+) -> np.ndarray:
+    """The eight control bounds (contract order) of a prediction tempered by beta."""
+    try:
+        bounds = control_bounds(
+            mean,
+            cov,
+            dt,
+            beta,
+            gamma,
+            horizon=settings.horizon_s,
+            method=bounds_fit,  # type: ignore[arg-type]
+            limits=(settings.u1_limit, settings.u2_limit),
+        )
+    except PredictionError as exc:
+        raise prediction_error(exc) from None
+    except ValueError as exc:
+        raise FieldError("prediction", str(exc)) from None
+    return bounds.as_array()
+
+
+def _belief(previous: AgentState | None, beta_low: float) -> Belief:
+    """The agent's belief over the hypotheses for ``beta_low`` (a new beta_low keeps the weights)."""
+    betas = hypotheses(beta_low)
+    if previous is None:
+        return prior_belief(betas)
+    belief = Belief.from_dict(previous.belief)
+    if not np.array_equal(belief.betas, betas):
+        belief = Belief(betas=betas, log_probs=belief.log_probs)
+    return belief
+
+
+def belief_out(belief: Belief) -> tuple[BeliefOut, BeliefOut]:
+    """(probabilities, beta values) keyed as API.md does: beta_low and beta_high."""
+    probs, betas = belief.probs, belief.betas
+    return (
+        BeliefOut(beta_low=float(probs[0]), beta_high=float(probs[-1])),
+        BeliefOut(beta_low=float(betas[0]), beta_high=float(betas[-1])),
+    )
+
+
+async def observe(
+    services: Services, agent_id: str, request: ObservationRequest, wait_frt_s: float = 0.0
+) -> ObservationResponse:
+    """The observation flow. The numerical work (validation, Bayes update, bounds fit: well under a
+    millisecond, run inline, a thread hop would cost more) uses the state read first; the store's
+    atomic update then only checks that nobody wrote in between (else it recomputes from the fresh
+    state, under the agent's lock). With ``wait_frt_s`` > 0 the answer waits that long at most for
+    the new version's exact FRT (``frt_ready`` says whether it came): a planner that needs the
+    fresh set saves the round trip of a waiting ``GET``."""
+    # Collision checks (deadlines) before this observation's few milliseconds of numerical work:
+    # requests already waiting on the event loop go first, and checks in flight finish first.
+    await services.priority.observation_turn()
+    settings = services.settings
+    engine = services.require_engine()
+    check_prediction_steps("prediction", request.prediction.mean, settings)
+    patch = request.config.model_dump(exclude_none=True) if request.config else {}
+    previous = await services.store.get(agent_id)
+    if previous is not None and request.timestamp <= previous.timestamp:
+        raise StaleTimestampError(agent_id, request.timestamp, previous.timestamp)
+    built: list[Belief] = []  # the belief of each state built, the last one last
+
+    def build(prior: AgentState | None, mean: np.ndarray, cov: np.ndarray) -> AgentState:
+        overrides = {**(prior.config if prior else {}), **patch}
+        config = effective_config(settings, overrides)
+        belief = _belief(prior, config["beta_low"])
+        action = request.observed_action
+        if action is not None and prior is not None:
+            prev_mean = np.asarray(prior.prediction["mean"][0], dtype=np.float64)
+            prev_cov = np.asarray(prior.prediction["cov"][0], dtype=np.float64)
+            observed = np.array([action.steering_rate, action.acceleration], dtype=np.float64)
+            belief = update_belief(belief, observed, prev_mean, prev_cov, config["epsilon"])
+        dt = request.prediction.dt
+        bounds = fit_bounds(
+            mean, cov, dt, belief.beta, config["gamma"], config["bounds_fit"], settings
+        )
+        check_ranges(engine, request.state.speed, bounds, bounds_field="prediction")
+        built.append(belief)
+        return AgentState(
+            agent_id=agent_id,
+            timestamp=request.timestamp,
+            x=request.state.x,
+            y=request.state.y,
+            heading=request.state.heading,
+            speed=request.state.speed,
+            belief=belief.to_dict(),
+            prediction={"dt": dt, "mean": mean.tolist(), "cov": cov.tolist()},
+            control_bounds=[float(b) for b in bounds],
+            config=overrides,
+            frt_version=(prior.frt_version + 1) if prior else 1,
+        )
+
+    def first_try() -> tuple[np.ndarray, np.ndarray, AgentState]:
+        mean, cov = validated_prediction(request.prediction, settings)
+        return mean, cov, build(previous, mean, cov)
+
+    mean, cov, candidate = first_try()
+
+    def apply(current: AgentState | None) -> AgentState:
+        if _same(current, previous):
+            return candidate
+        return build(current, mean, cov)
+
+    state = await services.store.update(agent_id, apply, timestamp=request.timestamp)
+    job = services.job_for(state)
+    services.submit(job)
+    services.conservative(job)  # built now, so that checks finding the exact set late look it up
+    if wait_frt_s > 0:
+        await services.exact_within(job, wait_frt_s)
+    # The belief just built, unless the stored one is another (from_dict would give the same arrays:
+    # a stored belief is normalised already, and normalising it again changes no bit).
+    belief = built[-1] if built[-1].to_dict() == state.belief else Belief.from_dict(state.belief)
+    probs, _ = belief_out(belief)
+    return ObservationResponse(
+        agent_id=agent_id,
+        timestamp=state.timestamp,
+        beta=belief.beta,
+        belief=probs,
+        control_bounds=ControlBoundsOut.from_list(state.control_bounds),
+        frt_version=state.frt_version,
+        # A previous state existed exactly when the version went past 1.
+        action_scored=request.observed_action is not None and state.frt_version > 1,
+        frt_ready=services.scheduler.is_ready(job.key),
+    )
+
+
+def _same(a: AgentState | None, b: AgentState | None) -> bool:
+    if a is None or b is None:
+        return a is b
+    return a == b  # field by field, lists and dicts by value: what comparing to_dict() did
+
+
+def check_ranges(engine: FRTEngine, v_start: float, bounds: np.ndarray, bounds_field: str) -> None:
+    """422 unless v_start and the bounds lie in the model's trained ranges.
+
+    ``v_start`` is the state's speed; the bounds are named under ``bounds_field``.
+    """
+    try:
+        engine.validate(v_start, bounds)
+    except OutOfRangeError as exc:
+        field = "state.speed" if exc.field == "v_start" else f"{bounds_field}.{exc.field}"
+        if bounds_field == "prediction" and exc.field != "v_start":
+            field = "prediction"  # the bounds are derived from it; the message names the bound
+        raise FieldError(field, str(exc)) from None
+
+
+async def get_agent(services: Services, agent_id: str, wait_frt_s: float = 0.0) -> AgentResponse:
+    """The agent's view; with ``wait_frt_s`` > 0, once the exact FRT of its current version is
+    ready or that many seconds have passed (the state is the one read first)."""
+    state = await services.store.get(agent_id)
+    if state is None:
+        raise AgentNotFoundError(agent_id)
+    if wait_frt_s > 0 and services.engine is not None:
+        await services.exact_within(services.job_for(state), wait_frt_s)
+    belief = Belief.from_dict(state.belief)
+    probs, betas = belief_out(belief)
+    config = effective_config(services.settings, state.config)
+    key = services.job_for(state).key
+    exact = services.scheduler.lookup(key) if services.engine else None
+    ready = exact is not None
+    return AgentResponse(
+        agent_id=agent_id,
+        timestamp=state.timestamp,
+        state={"x": state.x, "y": state.y, "heading": state.heading, "speed": state.speed},
+        beta=belief.beta,
+        belief=probs,
+        hypotheses=betas,
+        control_bounds=ControlBoundsOut.from_list(state.control_bounds),
+        frt_version=state.frt_version,
+        frt_ready=ready,
+        frt_refinement=services.refinement_state(exact, key),
+        frt_refinement_stage=services.refinement_stage(exact),
+        config=EffectiveConfig(beta_high=float(belief.betas[-1]), **config),
+    )
+
+
+async def delete_agent(services: Services, agent_id: str) -> DeleteResponse:
+    if not await services.store.delete(agent_id):
+        raise AgentNotFoundError(agent_id)
+    services.forget(agent_id)
+    return DeleteResponse(agent_id=agent_id, deleted=True)

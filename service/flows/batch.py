@@ -1,0 +1,93 @@
+"""Clearances of one trajectory against many sets at once: conservative and exact.
+
+A planner's check of 50 agents whose exact sets are late answers from 50 :class:`BoxTubeSet`\\ s;
+``BoxTubeSet.clearance`` one by one is ~15 small numpy calls per agent. Here the agents' boxes are
+stacked ([A, M, 4]) and the distances of every point to every box of every agent come from one
+call of the same kernel (``reach.engine.box_union_distances``), so the values are the same.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from shapely.geometry.base import BaseGeometry
+
+from reach.distances import box_union_distances, signed_distances
+from reach.frames import human_frames
+from reach.sets import BoxTubeSet, FRTSet
+
+
+def box_clearances(
+    sets: Sequence[BoxTubeSet], xy_world: np.ndarray, t_rel: Sequence[np.ndarray | None]
+) -> list[np.ndarray]:
+    """``[s.clearance(xy_world, t) for s, t in zip(sets, t_rel)]``, computed together for the sets
+    with the same number of boxes."""
+    xy_world = np.asarray(xy_world, dtype=float).reshape(-1, 2)
+    out: list[np.ndarray | None] = [None] * len(sets)
+    groups: dict[int, list[int]] = {}
+    for i, s in enumerate(sets):
+        groups.setdefault(len(s.boxes), []).append(i)
+    for members in groups.values():
+        for i, result in zip(
+            members,
+            _same_size([sets[i] for i in members], xy_world, [t_rel[i] for i in members]),
+            strict=True,
+        ):
+            out[i] = result
+    return out  # type: ignore[return-value]
+
+
+def _same_size(
+    sets: list[BoxTubeSet], xy_world: np.ndarray, t_rel: list[np.ndarray | None]
+) -> list[np.ndarray]:
+    x, y = human_frames(xy_world, [s.pose for s in sets])  # [A, N]
+    b = np.stack([s.boxes for s in sets])[:, None, :, :]  # [A, 1, M, 4]
+    counted = None  # every box counts for every point, unless a check is time-indexed
+    if any(t is not None for t in t_rel):
+        index = np.stack(
+            [
+                np.full(len(xy_world), frt.n_slices - 1) if t is None else frt.tube_indices(t)
+                for frt, t in zip(sets, t_rel, strict=True)
+            ]
+        )  # [A, N]
+        limit = np.take_along_axis(np.stack([frt.boxes_until for frt in sets]), index, axis=1)
+        counted = np.arange(b.shape[2])[None, None, :] < limit[:, :, None]
+    x, y = x[:, :, None], y[:, :, None]
+    return list(box_union_distances(x, y, b, counted))
+
+
+def tube_clearances(
+    sets: Sequence[FRTSet], xy_world: np.ndarray, t_rel: Sequence[np.ndarray | None]
+) -> list[np.ndarray]:
+    """``[s.clearance(xy_world, t) for s, t in zip(sets, t_rel)]`` for sets that answer with
+    ``FRTSet.clearance`` (the exact sets): every agent's points against their tubes in one
+    vectorised call each, ~2x faster for a planner's 50 agents; the same values (the same GEOS
+    operations on the same geometries and points, the human frame by the same arithmetic)."""
+    xy_world = np.asarray(xy_world, dtype=float).reshape(-1, 2)
+    if not sets:
+        return []
+    n = xy_world.shape[0]
+    x, y = (v.reshape(-1) for v in human_frames(xy_world, [s.pose for s in sets]))
+    tubes_list: list[BaseGeometry] = []  # each tube once (by identity)
+    position: dict[int, int] = {}
+    which: list[int] = []  # per point, its tube's place in tubes_list
+    for frt, t in zip(sets, t_rel, strict=True):
+        if t is None:
+            index = [frt.n_slices - 1] * n
+        else:
+            index = frt.tube_indices(t).tolist()
+            if len(index) != n:
+                raise ValueError("t_rel needs one time per point")
+        places = {}
+        for j in set(index):
+            tube = frt.tube(j)
+            place = position.setdefault(id(tube), len(tubes_list))
+            if place == len(tubes_list):
+                tubes_list.append(tube)
+            places[j] = place
+        which += [places[j] for j in index]
+    tubes = np.empty(len(tubes_list), dtype=object)
+    tubes[:] = tubes_list
+    signed = signed_distances(tubes, np.array(which, dtype=np.intp), np.stack([x, y], axis=1))
+    return list(signed.reshape(len(sets), n))

@@ -1,0 +1,86 @@
+"""The stateless FRT (``POST /v1/frt``): a state and control bounds (or a prediction and beta) in,
+contours and/or a collision answer out. Results are cached by their inputs like agents' sets."""
+
+from __future__ import annotations
+
+import numpy as np
+from starlette.concurrency import run_in_threadpool
+
+from reach.frames import Pose
+from service.api.errors import FieldError
+from service.api.limits import check_slices, check_trajectory
+from service.api.schemas import ContourQuery, ControlBoundsOut, FRTRequest, FRTResponse
+from service.flows.agents import check_ranges, fit_bounds, validated_prediction
+from service.flows.checks import answer, wait_budget_s
+from service.flows.contours import build
+from service.runtime.services import FRTJob, Services
+
+
+def request_bounds(services: Services, request: FRTRequest) -> np.ndarray:
+    settings = services.settings
+    if request.control_bounds is not None and request.prediction is not None:
+        raise FieldError("prediction", "give either control_bounds or prediction, not both")
+    if request.control_bounds is not None:
+        for name in ("beta", "gamma", "bounds_fit"):  # they shape bounds from a prediction only
+            if getattr(request, name) is not None:
+                raise FieldError(name, "applies to a prediction; control_bounds are used as given")
+        return np.array(request.control_bounds.as_list(), dtype=np.float64)
+    if request.prediction is None:
+        raise FieldError("control_bounds", "give control_bounds, or a prediction and beta")
+    if request.beta is None:
+        raise FieldError("beta", "required with a prediction")
+    mean, cov = validated_prediction(request.prediction, settings)
+    return fit_bounds(
+        mean,
+        cov,
+        request.prediction.dt,
+        request.beta,
+        request.gamma if request.gamma is not None else settings.gamma,
+        request.bounds_fit or settings.bounds_fit,
+        settings,
+    )
+
+
+async def stateless_frt(services: Services, request: FRTRequest, arrival: float) -> FRTResponse:
+    settings = services.settings
+    engine = services.require_engine()
+    horizon = services.horizon_s()
+    bounds = request_bounds(services, request)
+    field = "prediction" if request.control_bounds is None else "control_bounds"
+    check_ranges(engine, request.state.speed, bounds, bounds_field=field)
+    query = request.contours
+    if query is None and request.trajectory is None:
+        query = ContourQuery()
+    if query is not None:
+        check_slices("contours.slices", query.slices, horizon, settings)
+    check_trajectory("trajectory", request.trajectory, settings)
+    radius = (
+        request.collision_radius
+        if request.collision_radius is not None
+        else settings.collision_radius
+    )
+
+    state = request.state
+    job = FRTJob.make("", 0, Pose(state.x, state.y, state.heading), state.speed, bounds)
+    if request.deadline_ms is not None:
+        wait_s = wait_budget_s(arrival, request.deadline_ms, settings)
+    else:
+        wait_s = settings.exact_timeout_s
+    exact = await services.exact_within(job, wait_s)
+    t_origin = request.timestamp if request.mode == "time_indexed" else None
+
+    def compute() -> FRTResponse:
+        frt = exact if exact is not None else services.conservative(job)
+        return FRTResponse(
+            control_bounds=ControlBoundsOut.from_list(bounds.tolist()),
+            beta=request.beta if request.control_bounds is None else None,
+            horizon_s=horizon,
+            collision_radius=radius,
+            conservative=exact is None,
+            contours=None if query is None else build(frt, query, radius, request.timestamp),
+            collision=None
+            if request.trajectory is None
+            else answer(frt, request.trajectory, radius, t_origin),
+        )
+
+    return await run_in_threadpool(compute)

@@ -1,0 +1,161 @@
+"""Exact FRTs in worker processes: one engine per process, results sent back by pickle.
+
+The event loop shares the GIL with any thread in its process, so an exact set (~13 ms of numpy,
+onnxruntime and Python) computed in a thread slows every request answered meanwhile. Here each
+worker process loads the model once (:func:`init_worker`, from the same model path as the server)
+and runs :class:`ExactTask`\\ s; the result, a :class:`~reach.engine.FieldTubeSet` with its
+eagerly built whole tube and the small arrays its slices are drawn from later, comes back by pickle
+between our own processes (trusted IPC, :class:`~service.runtime.pipe_pool.PipePool`; what a set sends
+is its ``__getstate__``). Conservative sets (boxes only, well under the
+~1 ms a task's round trip costs the server) are built by the server itself.
+
+Exact-set workers run below the server (SCHED_IDLE by default, :func:`lower_priority`), so that on
+a busy machine the event loop answers first and exact sets use what is left. A worker exits when its server does (even
+a killed one). If worker processes cannot be started, :func:`start_pool` says why and the caller
+keeps threads.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import threading
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from reach.contract import N_INPUTS
+from reach.engine import FRTEngine
+from reach.frames import Pose
+from reach.notch import NOTCH_STAGES
+from reach.polygons import compile_polygon_kernel
+from reach.sets import FRTSet
+from reach.speed_programme import compile_speed_programme
+from service.runtime.memory import freeze_start_up_objects, keep_freed_memory
+from service.runtime.pipe_pool import PipePool
+
+log = logging.getLogger("frt.exact_worker")
+
+
+@dataclass
+class ExactTask:
+    """``engine.exact(pose, v_start, bounds, notch_cut, notch_stage)``: with the given engine
+    (threads) or, once pickled to a worker process, with that process's own."""
+
+    pose: Pose
+    v_start: float
+    bounds: np.ndarray
+    engine: FRTEngine | None = field(default=None, repr=False, compare=False)
+    notch_cut: bool = False
+    notch_stage: int | None = None
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        fields = (self.pose, self.v_start, self.bounds, None, self.notch_cut, self.notch_stage)
+        return ExactTask, fields
+
+    def __call__(self) -> FRTSet:
+        engine = self.engine if self.engine is not None else _engine
+        if engine is None:
+            raise RuntimeError("no engine in this process")
+        return engine.exact(
+            self.pose,
+            self.v_start,
+            self.bounds,
+            notch_cut=self.notch_cut,
+            notch_stage=self.notch_stage,
+        )
+
+    @property
+    def stage(self) -> int:
+        """Which notch-cut stage this task computes (0: the uncut set)."""
+        return (self.notch_stage or len(NOTCH_STAGES)) if self.notch_cut else 0
+
+    def refinement(self, result: object) -> ExactTask | None:
+        """The same set cut by the next of NOTCH_STAGES, if ``result`` (this task's set) could be
+        cut (``FieldTubeSet.notch_possible``) and is not cut by the last stage yet; else None."""
+        if not isinstance(result, FRTSet) or not result.notch_possible:
+            return None
+        done = result.notch_stage
+        if done >= len(NOTCH_STAGES):
+            return None
+        return replace(self, notch_cut=True, notch_stage=done + 1)
+
+
+def init_worker(
+    model_path: str, nice: int, parent_pid: int, policy: str = "idle", network: bool = True
+) -> None:
+    """Process initializer: a scheduling policy below the server's, load the engine (configured as
+    the server's: cut by the network if ``network``), warm it, watch the parent."""
+    global _engine
+    keep_freed_memory()
+    lower_priority(policy, nice)
+    from models.runtime import ValueModel
+    from models.value_fields import ProjectionField, engine_for
+
+    _engine = engine_for(ValueModel.load(Path(model_path)), network=network)
+    # The first runtime call and contour are slower than the rest, and the partition's dynamic
+    # programme and the polygons' kernel are compiled on first use (numba): take them before any
+    # request.
+    with contextlib.suppress(Exception):  # bounds outside a model's ranges: warm on a real set
+        warm_up_task(_engine)()
+    compile_speed_programme()
+    compile_polygon_kernel()
+    field = _engine.value_field
+    if isinstance(field, ProjectionField):  # the runtime's arena sized for the largest sets
+        field.model.evaluate_projection(np.zeros((4 * _engine.max_nodes, N_INPUTS), np.float32))
+    threading.Thread(target=_exit_with_parent, args=(parent_pid,), daemon=True).start()
+    freeze_start_up_objects()
+
+
+def lower_priority(policy: str, nice: int) -> None:
+    """Run this process below the server (Linux; elsewhere, or if refused, at its priority).
+
+    * ``"idle"`` (SCHED_IDLE): only when a CPU has nothing else to run. A CPU that runs only such
+      workers counts as idle when the server wakes, so the server is placed there at once instead
+      of queueing beside another busy process (the sustained bench: 3 -> 1-2 checks late at the
+      server, 15 -> 5-9 late end to end, alternating runs).
+    * ``"batch"`` (SCHED_BATCH, plus ``nice``): a worker woken by a task does not preempt the
+      server that sent it; it still counts as busy when the server wakes.
+    """
+    chosen = os.SCHED_IDLE if policy == "idle" else os.SCHED_BATCH
+    with contextlib.suppress(AttributeError, OSError):
+        os.sched_setscheduler(0, chosen, os.sched_param(0))
+    if nice and policy != "idle":
+        with contextlib.suppress(OSError):  # not permitted here: run at the server's priority
+            os.nice(nice)
+
+
+def warm_up_task(engine: FRTEngine) -> ExactTask:
+    """An exact set of a moving car with moderate bounds (its speed inside the model's range)."""
+    bounds = np.array([-0.15, -1.5, -0.15, -1.5, 0.15, 1.5, 0.15, 1.5], dtype=np.float64)
+    lo, hi = engine.ranges["v_start"]
+    return ExactTask(Pose(0.0, 0.0, 0.0), min(max(5.0, lo), hi), bounds, engine)
+
+
+def _exit_with_parent(parent_pid: int) -> None:
+    while True:
+        time.sleep(1.0)
+        if os.getppid() != parent_pid:
+            os._exit(0)
+
+
+def start_pool(
+    model_path: Path,
+    workers: int,
+    nice: int,
+    policy: str = "idle",
+    timeout_s: float = 120.0,
+    network: bool = True,
+) -> PipePool:
+    """A pool of ``workers`` processes, each with the engine loaded and warmed and run below the
+    server (:func:`lower_priority`); raises if they cannot all be started within ``timeout_s``."""
+    return PipePool(
+        workers,
+        initializer=init_worker,
+        initargs=(str(model_path), nice, os.getpid(), policy, network),
+        timeout_s=timeout_s,
+    )

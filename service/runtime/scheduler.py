@@ -1,0 +1,594 @@
+"""Background computation of exact FRTs on a few workers, with an LRU cache of the results.
+
+Workers are threads or, in the server, processes (:mod:`service.runtime.exact_worker`): an exact set is
+~17 ms of numpy and onnxruntime that, on a thread, would hold the event loop's GIL.
+
+An observation submits the exact set of the agent's new FRT version and returns at once; a collision
+check waits for that set only until its deadline (:meth:`FRTScheduler.wait`) and otherwise answers
+from the engine's conservative set. Results are keyed by agent, version *and* a digest of the inputs,
+so a cached set can never answer for other inputs (e.g. an agent deleted and created again, whose
+versions restart, or another replica's state).
+
+A set may be *refined* after it is ready (:attr:`FRTScheduler.refinement`): a tighter set of the
+same key, computed when no exact set is waiting and on at most ``workers - 1`` workers, replaces the
+cached one. Readiness (and so observation -> ready) is the first set's; both contain the true set.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import functools
+import hashlib
+import logging
+import math
+import struct
+import threading
+import time
+from collections import OrderedDict
+from collections.abc import Callable, Hashable, Sequence
+from concurrent.futures import BrokenExecutor, CancelledError, Executor, Future, ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Any
+
+from service.runtime.metrics import Metrics
+
+log = logging.getLogger("frt.scheduler")
+
+#: Queued refinements by slot (agent, or key for the stateless endpoint): the key, its compute and
+#: when it was queued.
+_RefineQueue = OrderedDict[Hashable, tuple["FRTKey", Callable[[], Any], float]]
+
+
+@dataclass(frozen=True)
+class FRTKey:
+    agent_id: str  # "" for the stateless endpoint
+    version: int
+    digest: str
+
+    @classmethod
+    def of(cls, agent_id: str, version: int, inputs: Sequence[float]) -> FRTKey:
+        """Key of the FRT for ``inputs`` = (x, y, heading, v_start, *eight bounds)."""
+        packed = struct.pack(f"<{len(inputs)}d", *(float(v) for v in inputs))
+        return cls(agent_id, version, hashlib.blake2b(packed, digest_size=12).hexdigest())
+
+
+#: Sets kept per agent: its current version's and the one before (for a check that read the agent's
+#: state just before an update). Older versions are never asked for again (checks, contours and
+#: observations use the current state's), and a cache full of them only kept objects alive for the
+#: garbage collector to walk: ~60 polygons per exact set once its tubes are drawn, 80 000 objects
+#: and full collections of 25-35 ms under the load test.
+VERSIONS_PER_AGENT = 2
+
+#: Refinements start newest first: the version observed last has the most of its life left to be
+#: served (``scripts/refinement_landing.py``, five agents observed at 2 Hz, side by side: 35 of 153
+#: refinements landed on their agent's current set oldest first, 126 newest first; two at 5 Hz,
+#: 64 and 65 of 144, where a version lives about as long as its refinement takes). One
+#: queued this long goes next all the same, so that an agent observed rarely, whose version stays
+#: current, is not passed over for ever by agents observed often.
+REFINE_OLDEST_AFTER_S = 1.0
+
+
+class LRUCache:
+    """A small thread-safe least-recently-used map of FRT sets by :class:`FRTKey`, holding at most
+    ``per_agent`` keys of each agent (the latest cached; the stateless endpoint's, agent "", are
+    limited by ``size`` only)."""
+
+    def __init__(self, size: int, per_agent: int = VERSIONS_PER_AGENT) -> None:
+        self._size = size
+        self._per_agent = per_agent
+        self._items: OrderedDict[FRTKey, Any] = OrderedDict()
+        self._by_agent: dict[str, list[FRTKey]] = {}  # cached keys per agent, oldest first
+        self._lock = threading.Lock()
+
+    def __len__(self) -> int:
+        with self._lock:
+            return len(self._items)
+
+    def __contains__(self, key: object) -> bool:
+        with self._lock:
+            return key in self._items
+
+    def get(self, key: FRTKey) -> Any | None:
+        """The cached value for ``key`` (marked recently used), or None."""
+        with self._lock:
+            value = self._items.get(key)
+            if value is not None:
+                self._items.move_to_end(key)
+            return value
+
+    def get_or_compute(self, key: FRTKey, compute: Callable[[], Any]) -> tuple[Any, bool]:
+        """The cached value for ``key`` or ``compute()`` (cached); and whether it was a hit."""
+        value = self.get(key)
+        if value is not None:
+            return value, True
+        value = compute()  # outside the lock: two racing misses both compute, harmlessly
+        self.put(key, value)
+        return value, False
+
+    def put(self, key: FRTKey, value: Any) -> None:
+        """Cache ``value`` for ``key``; the agent's oldest keys beyond ``per_agent`` and the least
+        recently used beyond ``size`` go."""
+        with self._lock:
+            known = key in self._items
+            self._items[key] = value
+            self._items.move_to_end(key)
+            if key.agent_id and not known:
+                keys = self._by_agent.setdefault(key.agent_id, [])
+                keys.append(key)
+                while len(keys) > self._per_agent:
+                    self._items.pop(keys.pop(0), None)
+            while len(self._items) > self._size:
+                self._untrack(self._items.popitem(last=False)[0])
+
+    def replace(self, key: FRTKey, value: Any) -> bool:
+        """Put ``value`` in place of ``key``'s cached one, if ``key`` is still cached (its place
+        in the LRU order kept); whether it was."""
+        with self._lock:
+            if key not in self._items:
+                return False
+            self._items[key] = value
+            return True
+
+    def newer_cached(self, key: FRTKey) -> bool:
+        """Whether a later version of ``key``'s agent is cached."""
+        with self._lock:
+            return any(k.version > key.version for k in self._by_agent.get(key.agent_id, ()))
+
+    def forget(self, agent_id: str) -> None:
+        """Drop every set of ``agent_id``."""
+        with self._lock:
+            for key in self._by_agent.pop(agent_id, []):
+                self._items.pop(key, None)
+
+    def _untrack(self, key: FRTKey) -> None:
+        keys = self._by_agent.get(key.agent_id)
+        if keys is not None and key in keys:
+            keys.remove(key)
+            if not keys:
+                del self._by_agent[key.agent_id]
+
+
+class FRTScheduler:
+    """Exact sets computed on an executor (threads, or worker processes: :meth:`use_executor`),
+    at most ``workers`` at a time.
+
+    Sets wait in the scheduler's own queue, one per agent, until a worker is free: a newer version
+    of an agent replaces its queued older one in place (so an agent observed faster than its sets
+    can be computed is not starved), and a version older than one queued or running for the same
+    agent is not started at all. Only then does a set go to the executor, which therefore never holds
+    a superseded one.
+    """
+
+    def __init__(self, *, workers: int, cache_size: int, metrics: Metrics) -> None:
+        self._workers = workers
+        self._metrics = metrics
+        self._executor: Executor | None = None
+        self._cache = LRUCache(cache_size)
+        self._cache_size = cache_size
+        self._pending: dict[FRTKey, _Job] = {}  # queued or running
+        self._queue: OrderedDict[Hashable, FRTKey] = OrderedDict()  # one per agent, FIFO
+        self._running: set[FRTKey] = set()
+        #: When each running set was handed to a worker, and how long sets take from there
+        #: (moving average), to tell whether a running set can finish within a check's wait.
+        self._started: dict[FRTKey, float] = {}
+        self._typical_s = 0.0
+        self._discard: set[FRTKey] = set()  # running for a forgotten agent: do not cache
+        #: Given a finished set's compute and result, the compute of a tighter set of the same key
+        #: (or None): queued one per agent, run when no exact set waits (``_dispatch``). Asked
+        #: again of each refinement that lands, so refinements may come in stages.
+        self.refinement: Callable[[Callable[[], Any], Any], Callable[[], Any] | None] | None = None
+        #: Per agent (or key): its latest version's refinement and when it was queued. A set's
+        #: first refinement waits in the first queue, further stages in the second, which runs
+        #: only while the first is empty: a quick first cut of every agent before any fine one.
+        self._refine_queue: _RefineQueue = OrderedDict()
+        self._refine_later: _RefineQueue = OrderedDict()
+        self._refining: set[FRTKey] = set()
+        #: Per agent, when its last two versions were submitted (as many agents as the cache holds
+        #: sets), and per refinement stage how long one takes (moving average): whether a later
+        #: stage would land before the agent's next version (``_lands_in_time``).
+        self._version_times: OrderedDict[str, tuple[int, float, float]] = OrderedDict()
+        self._refine_typical_s: dict[int, float] = {}
+        #: Keys whose refinement raised, newest last (as many as the cache holds sets).
+        self._refine_failed: OrderedDict[FRTKey, None] = OrderedDict()
+        #: Keys whose later refinement stage was skipped (``_lands_in_time``), likewise.
+        self._refine_skipped: OrderedDict[FRTKey, None] = OrderedDict()
+        self._lock = threading.RLock()  # done-callbacks may run inline in submit()
+
+    @property
+    def workers(self) -> int:
+        return self._workers
+
+    def start(self) -> None:
+        with self._lock:
+            if self._executor is None:
+                self._executor = ThreadPoolExecutor(self._workers, thread_name_prefix="frt-exact")
+
+    def use_executor(self, executor: Executor) -> None:
+        """Compute on ``executor`` from now on (e.g. a process pool; its tasks must then pickle).
+        Sets already started finish where they are; the scheduler shuts ``executor`` down."""
+        with self._lock:
+            old = self._executor
+            self._executor = executor
+        if old is not None:
+            old.shutdown(wait=False)
+        self._dispatch()
+
+    def shutdown(self) -> None:
+        with self._lock:
+            executor, self._executor = self._executor, None
+            queued = [self._pending.pop(key) for key in self._queue.values()]
+            self._queue.clear()
+            self._refine_queue.clear()
+            self._refine_later.clear()
+        for job in queued:
+            job.future.cancel()
+        if executor is not None:
+            # Worker processes are waited for (at most the sets they are computing) so that none
+            # outlives the server; threads are not.
+            wait = not isinstance(executor, ThreadPoolExecutor)
+            executor.shutdown(wait=wait, cancel_futures=True)
+
+    def lookup(self, key: FRTKey) -> Any | None:
+        """The cached set for ``key`` (marking it recently used), or ``None``."""
+        return self._cache.get(key)
+
+    def is_ready(self, key: FRTKey) -> bool:
+        return key in self._cache
+
+    def submit(self, key: FRTKey, compute: Callable[[], Any]) -> Future[Any]:
+        """Start computing ``key`` unless it is cached or under way. A queued older version of the
+        same agent is cancelled and this one takes its place in the queue; if a newer version is
+        queued or running, this one is not computed (the returned future is cancelled)."""
+        with self._lock:
+            if self._executor is None:
+                raise RuntimeError("scheduler not started")
+            cached = self._cache.get(key)
+            if cached is not None:
+                done: Future[Any] = Future()
+                done.set_result(cached)
+                return done
+            pending = self._pending.get(key)
+            if pending is not None:
+                return pending.future
+            future: Future[Any] = Future()
+            slot: Hashable = key.agent_id or key
+            if key.agent_id:
+                # The agent's queued set is in its slot (one per agent): no scan of the queue.
+                older = self._queue.get(slot)
+                if (older is not None and older.version > key.version) or any(
+                    k.agent_id == key.agent_id and k.version > key.version for k in self._running
+                ):
+                    future.cancel()
+                    return future
+                if older is not None:
+                    self._pending.pop(older).future.cancel()
+            self._pending[key] = _Job(compute, future)
+            self._queue[slot] = key  # an existing slot keeps its place
+            if key.agent_id:
+                self._note_version(key)
+        self._dispatch()
+        return future
+
+    def _note_version(self, key: FRTKey) -> None:
+        """Remember when ``key``'s agent's latest versions came (called with the lock held)."""
+        now = time.perf_counter()
+        known = self._version_times.get(key.agent_id)
+        if known is None:
+            self._version_times[key.agent_id] = (key.version, -math.inf, now)
+        elif key.version > known[0]:
+            self._version_times[key.agent_id] = (key.version, known[2], now)
+        self._version_times.move_to_end(key.agent_id)
+        while len(self._version_times) > self._cache_size:
+            self._version_times.popitem(last=False)
+
+    def _lands_in_time(self, key: FRTKey, compute: Callable[[], Any]) -> bool:
+        """Whether a later stage's refinement of ``key`` is expected to land while ``key`` is its
+        agent's current version (called with the lock held): if the agent's next version comes as
+        long after this one as this one came after the one before, and the stage takes as long as
+        it has (moving average). A later stage is slow; one that would be stale on landing would
+        only hold the refining worker from the next version's first stage."""
+        known = self._version_times.get(key.agent_id) if key.agent_id else None
+        typical = self._refine_typical_s.get(getattr(compute, "stage", 1))
+        if known is not None and known[0] > key.version:
+            return False  # superseded already
+        if known is None or typical is None:
+            return True
+        _, previous, latest = known
+        interval = latest - previous
+        return time.perf_counter() - latest + typical < interval
+
+    async def wait(self, key: FRTKey, compute: Callable[[], Any], timeout_s: float) -> Any | None:
+        """The exact set for ``key`` if it is (or becomes) ready within ``timeout_s``, else ``None``.
+
+        Never cancels the computation: a late result still lands in the cache. (Collision checks
+        use :meth:`waitable`, which skips sets that cannot make their deadline.)
+        """
+        cached = self.lookup(key)
+        if cached is not None:
+            self._metrics.frt_cache.labels("hit").inc()
+            return cached
+        with self._lock:
+            under_way = key in self._pending
+        self._metrics.frt_cache.labels("pending" if under_way else "miss").inc()
+        submitted = self.submit(key, compute)
+        if submitted.cancelled():
+            return None
+        future = asyncio.wrap_future(submitted)
+        if timeout_s > 0:
+            await asyncio.wait({future}, timeout=timeout_s)
+        if future.done() and not future.cancelled() and future.exception() is None:
+            return future.result()
+        return None
+
+    def waitable(
+        self, key: FRTKey, compute: Callable[[], Any], timeout_s: float
+    ) -> Future[Any] | None:
+        """For a collision check, without awaiting: the future of ``key``'s set if it may be ready
+        within ``timeout_s`` (done, or running and due at the workers' recent pace), else ``None``
+        (queued behind others, or too slow). Starts computing it if nobody has. A check of many
+        agents then awaits the few futures together instead of one task per agent."""
+        return self.waitable_many([(key, compute)], timeout_s)[0]
+
+    def waitable_many(
+        self, jobs: Sequence[tuple[FRTKey, Callable[[], Any]]], timeout_s: float
+    ) -> list[Future[Any] | None]:
+        """:meth:`waitable` of several sets, the cache metrics counted once per label (a
+        planner's check of 50 agents whose sets are late: one update, not 50)."""
+        with self._lock:
+            under_way = sum(key in self._pending for key, _ in jobs)
+        for label, count in (("pending", under_way), ("miss", len(jobs) - under_way)):
+            if count:
+                self._metrics.frt_cache.labels(label).inc(count)
+        out: list[Future[Any] | None] = []
+        for key, compute in jobs:
+            future = self.submit(key, compute)
+            if future.cancelled():
+                out.append(None)
+            elif future.done():
+                out.append(future)
+            elif not future.running() or self.expected_remaining_s(key) > timeout_s:
+                out.append(None)
+            else:
+                out.append(future)
+        return out
+
+    def expected_remaining_s(self, key: FRTKey) -> float:
+        """About how long until the running set ``key`` is done (0 if unknown or not running)."""
+        with self._lock:
+            started = self._started.get(key)
+            typical = self._typical_s
+        if started is None:
+            return 0.0
+        return max(started + typical - time.perf_counter(), 0.0)
+
+    def forget(self, agent_id: str) -> None:
+        with self._lock:
+            self._cache.forget(agent_id)
+            queued = self._queue.pop(agent_id, None)
+            job = self._pending.pop(queued) if queued is not None else None
+            self._drop_queued_refinement(agent_id)
+            self._discard.update(
+                k for k in self._running | self._refining if k.agent_id == agent_id
+            )
+        if job is not None:
+            job.future.cancel()
+
+    def _dispatch(self) -> None:
+        """Hand queued sets to the executor while fewer than ``workers`` are running; then, if no
+        exact set waits, refinements (``_dispatch_refinements``)."""
+        while True:
+            with self._lock:
+                if self._executor is None:
+                    return
+                if len(self._running) + len(self._refining) >= self._workers:
+                    return
+                if not self._queue:
+                    self._dispatch_refinements()
+                    return
+                _, key = self._queue.popitem(last=False)
+                job = self._pending[key]
+                if not job.future.set_running_or_notify_cancel():
+                    del self._pending[key]
+                    continue
+                self._running.add(key)
+                self._started[key] = time.perf_counter()
+                executor = self._executor
+                try:
+                    handle = executor.submit(timed, job.compute)
+                except Exception as exc:  # e.g. a broken process pool; _finished says so
+                    handle = Future()
+                    handle.set_exception(exc)
+            handle.add_done_callback(functools.partial(self._finished, key))
+
+    def _dispatch_refinements(self) -> None:
+        """Start queued refinements on free workers, keeping one worker for exact sets (called with
+        the lock held and no exact set queued): first stages before later ones; in each queue the
+        newest first, or the oldest once it has waited REFINE_OLDEST_AFTER_S. A refinement whose
+        set left the cache (a newer version, or forgotten) is dropped."""
+        executor = self._executor
+        assert executor is not None
+        while len(self._refining) < max(self._workers - 1, 1):
+            if len(self._running) + len(self._refining) >= self._workers:
+                return
+            queue = self._refine_queue or self._refine_later
+            if not queue:
+                return
+            oldest = next(iter(queue.values()))
+            waited = time.perf_counter() - oldest[2]
+            _, (key, compute, _) = queue.popitem(last=waited < REFINE_OLDEST_AFTER_S)
+            if key not in self._cache:
+                self._count_refinement("dropped", compute)
+                continue
+            if queue is self._refine_later and not self._lands_in_time(key, compute):
+                self._count_refinement("skipped", compute)
+                self._remember(self._refine_skipped, key)
+                continue
+            self._refining.add(key)
+            try:
+                handle = executor.submit(timed, compute)
+            except Exception as exc:
+                handle = Future()
+                handle.set_exception(exc)
+            handle.add_done_callback(functools.partial(self._refined, key, compute))
+
+    def _count_refinement(self, outcome: str, compute: Callable[[], Any]) -> None:
+        """``frt_refinements_total`` by outcome and stage (the compute's ``stage``, else 1)."""
+        stage = str(getattr(compute, "stage", 1))
+        self._metrics.refinements.labels(outcome, stage).inc()
+
+    def _drop_queued_refinement(self, slot: Hashable) -> None:
+        """Drop the refinement queued in ``slot``, in either queue (called with the lock held)."""
+        for queue in (self._refine_queue, self._refine_later):
+            entry = queue.pop(slot, None)
+            if entry is not None:
+                self._count_refinement("dropped", entry[1])
+
+    def _superseded(self, key: FRTKey) -> bool:
+        """Whether a later version of ``key``'s agent is queued, running or cached (called with the
+        lock held): checks ask for that version's set from then on, not ``key``'s. The agent's
+        queued set is in its slot, so only the few running sets are scanned."""
+        if not key.agent_id:
+            return False
+        queued = self._queue.get(key.agent_id)
+        later = (
+            k for k in (queued, *self._running) if k is not None and k.agent_id == key.agent_id
+        )
+        return any(k.version > key.version for k in later) or self._cache.newer_cached(key)
+
+    def refinement_failed(self, key: FRTKey) -> bool:
+        """Whether the refinement of ``key``'s set raised (it then stays the set first made
+        ready)."""
+        with self._lock:
+            return key in self._refine_failed
+
+    def refinement_skipped(self, key: FRTKey) -> bool:
+        """Whether a later stage of ``key``'s refinement was skipped (``_lands_in_time``): its
+        set stays as the stage before left it."""
+        with self._lock:
+            return key in self._refine_skipped
+
+    def _remember(self, keys: OrderedDict[FRTKey, None], key: FRTKey) -> None:
+        """Add ``key`` to ``keys``, which hold as many as the cache holds sets (called with the
+        lock held)."""
+        keys[key] = None
+        while len(keys) > self._cache_size:
+            keys.popitem(last=False)
+
+    def _queue_refinement(
+        self, key: FRTKey, compute: Callable[[], Any], result: Any, later: bool = False
+    ) -> None:
+        """Queue the refinement of ``key``'s set ``result`` (made by ``compute``), if there is one:
+        in the second queue if ``result`` is itself a refinement (``later``)."""
+        refine = self.refinement
+        follow_up = refine(compute, result) if refine is not None else None
+        if follow_up is None:
+            return
+        with self._lock:
+            slot: Hashable = key.agent_id or key
+            self._drop_queued_refinement(slot)  # the newer one goes to the back
+            queue = self._refine_later if later else self._refine_queue
+            queue[slot] = (key, follow_up, time.perf_counter())
+
+    def _refined(self, key: FRTKey, compute: Callable[[], Any], handle: Future[Any]) -> None:
+        """A refinement is done: its set replaces the cached one of the same key (if still
+        cached; a newer version or a forgotten agent drops it), and its own refinement, if any, is
+        queued while the set is its agent's current one."""
+        follow = False
+        with self._lock:
+            self._refining.discard(key)
+            discard = key in self._discard
+            self._discard.discard(key)
+            error = handle.exception() if not handle.cancelled() else CancelledError()
+            if error is None:
+                landed = not discard and self._cache.replace(key, handle.result()[0])
+                outcome = "wasted"
+                if landed:
+                    outcome = "stale" if self._superseded(key) else "landed"
+                    self._metrics.frt_compute_seconds.labels("refined").observe(handle.result()[1])
+                stage = getattr(compute, "stage", 1)
+                typical = self._refine_typical_s.get(stage, handle.result()[1])
+                self._refine_typical_s[stage] = typical + 0.2 * (handle.result()[1] - typical)
+                self._count_refinement(outcome, compute)
+                follow = outcome == "landed"
+            elif not discard and not isinstance(error, CancelledError):
+                self._count_refinement("failed", compute)
+                self._remember(self._refine_failed, key)
+        if error is not None and not isinstance(error, CancelledError | BrokenExecutor):
+            log.error(
+                "FRT refinement failed",
+                extra={"agent_id": key.agent_id, "frt_version": key.version, "error": repr(error)},
+            )
+        if follow:
+            self._queue_refinement(key, compute, handle.result()[0], later=True)
+        self._dispatch()
+
+    def _finished(self, key: FRTKey, handle: Future[Any]) -> None:
+        with self._lock:
+            self._running.discard(key)
+            started = self._started.pop(key, None)
+            if started is not None and not handle.cancelled() and handle.exception() is None:
+                self._typical_s += 0.2 * (time.perf_counter() - started - self._typical_s)
+            job = self._pending.pop(key, None)
+            discard = key in self._discard
+            self._discard.discard(key)
+            error = handle.exception() if not handle.cancelled() else CancelledError()
+            if error is None:
+                result, seconds = handle.result()
+                if not discard:
+                    self._cache.put(key, result)
+        if isinstance(error, BrokenExecutor) and job is not None and self._fall_back(key, job):
+            return
+        self._dispatch()
+        if job is None:
+            return
+        if error is None:
+            self._metrics.frt_compute_seconds.labels("exact").observe(seconds)
+            if not discard:
+                self._queue_refinement(key, job.compute, result)
+                self._dispatch()
+            job.future.set_result(result)
+            return
+        job.future.set_exception(error)
+        self._metrics.frt_failures.inc()
+        log.error(
+            "exact FRT failed",
+            extra={"agent_id": key.agent_id, "frt_version": key.version, "error": repr(error)},
+            exc_info=error,
+        )
+
+    def _fall_back(self, key: FRTKey, job: _Job) -> bool:
+        """The executor broke (a worker process died): log it, compute on threads from now on, and
+        run ``job`` again there. False if the executor was already threads."""
+        with self._lock:
+            broken = self._executor
+            if broken is None or isinstance(broken, ThreadPoolExecutor):
+                return False
+            log.error(
+                "FRT worker processes failed: computing exact sets on threads from now on, "
+                "without refinements"
+            )
+            self._executor = ThreadPoolExecutor(self._workers, thread_name_prefix="frt-exact")
+            self.refinement = None  # on threads they would hold the event loop's GIL
+            self._refine_queue.clear()
+            self._refine_later.clear()
+            self._pending[key] = job
+            self._running.add(key)
+            self._started[key] = time.perf_counter()
+            handle = self._executor.submit(timed, job.compute)
+        broken.shutdown(wait=False, cancel_futures=True)
+        handle.add_done_callback(functools.partial(self._finished, key))
+        self._dispatch()
+        return True
+
+
+@dataclass
+class _Job:
+    compute: Callable[[], Any]
+    future: Future[Any]
+
+
+def timed(compute: Callable[[], Any]) -> tuple[Any, float]:
+    """``compute()`` and its duration in seconds (module level: it runs in worker processes too)."""
+    start = time.perf_counter()
+    result = compute()
+    return result, time.perf_counter() - start

@@ -1,0 +1,315 @@
+"""The objects one app shares between its routes: settings, store, scheduler, metrics, engine.
+
+The model is loaded in a background thread at start-up: ``/healthz`` answers at once, ``/readyz`` and
+the model-dependent routes answer 503 until it is loaded (or for good, if it cannot be).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import functools
+import logging
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import Future
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from starlette.concurrency import run_in_threadpool
+from starlette.requests import HTTPConnection
+
+from models.runtime import ModelCard, ValueModel
+from models.value_fields import engine_for, network_decision
+from reach.engine import FRTEngine
+from reach.frames import Pose
+from reach.notch import NOTCH_STAGES
+from reach.polygons import compile_polygon_kernel
+from reach.sets import FRTSet
+from service.api.errors import ServiceUnavailableError
+from service.api.schemas import ActiveParts, NetworkPart
+from service.flows.tube_builder import TubeBuilder
+from service.runtime.answer_cost import AnswerCosts
+from service.runtime.exact_worker import ExactTask, start_pool, warm_up_task
+from service.runtime.memory import freeze_start_up_objects, keep_freed_memory
+from service.runtime.metrics import Metrics
+from service.runtime.priority import ChecksFirst
+from service.runtime.scheduler import FRTKey, FRTScheduler, LRUCache, timed
+from service.runtime.settings import Settings
+from service.runtime.store import AgentState, AgentStore, make_store
+
+log = logging.getLogger("frt.services")
+
+
+@dataclass(frozen=True)
+class FRTJob:
+    """What one FRT depends on, and its cache key."""
+
+    key: FRTKey
+    pose: Pose
+    v_start: float
+    bounds: np.ndarray
+
+    @classmethod
+    def make(cls, agent_id: str, version: int, pose: Pose, v_start: float, bounds: Any) -> FRTJob:
+        bounds = np.asarray(bounds, dtype=np.float64)
+        inputs = (pose.x, pose.y, pose.heading, v_start, *bounds.tolist())
+        return cls(FRTKey.of(agent_id, version, inputs), pose, float(v_start), bounds)
+
+
+#: Enough for the largest multi-agent check (max_agents_per_check) twice over; each entry is a
+#: few objects the garbage collector walks, so not more.
+@functools.lru_cache(maxsize=512)
+def _job_of(
+    agent_id: str,
+    version: int,
+    x: float,
+    y: float,
+    heading: float,
+    v_start: float,
+    bounds: tuple[float, ...],
+) -> FRTJob:
+    """The job of an agent's state, made once per version (a planner checks each agent at 10 Hz;
+    the key's digest of the inputs is the cost). Keyed by every input, so it cannot go stale."""
+    return FRTJob.make(agent_id, version, Pose(x, y, heading), v_start, bounds)
+
+
+@dataclass
+class Services:
+    settings: Settings
+    metrics: Metrics
+    store: AgentStore
+    scheduler: FRTScheduler
+    conservative_cache: LRUCache
+    engine: FRTEngine | None = None
+    #: The loaded model's card, and which parts build the served sets.
+    card: ModelCard | None = None
+    parts: ActiveParts | None = None
+    model_name: str | None = None
+    model_error: str | None = "model is loading"
+    _loader: asyncio.Task[None] | None = field(default=None, repr=False)
+    #: What answering a collision check costs per agent once its sets are known.
+    answer_costs: AnswerCosts = field(default_factory=AnswerCosts, repr=False)
+    #: Draws the tubes time-indexed checks need, now or between requests.
+    tubes: TubeBuilder = field(default_factory=TubeBuilder, repr=False)
+    #: Holds observations' numerical work back while collision checks are in flight.
+    priority: ChecksFirst = field(default_factory=ChecksFirst, repr=False)
+
+    @classmethod
+    def build(cls, settings: Settings) -> Services:
+        metrics = Metrics()
+        store = make_store(
+            settings.store_url, ttl_s=settings.agent_ttl_s, max_agents=settings.max_agents
+        )
+        scheduler = FRTScheduler(
+            workers=settings.frt_workers, cache_size=settings.frt_cache_size, metrics=metrics
+        )
+        return cls(
+            settings=settings,
+            metrics=metrics,
+            store=store,
+            scheduler=scheduler,
+            conservative_cache=LRUCache(settings.frt_cache_size),
+        )
+
+    # ------------------------------------------------------------------ lifecycle
+    async def start(self) -> None:
+        keep_freed_memory()  # a check of 50 agents stacks ~1 MB arrays: no page faults for them
+        await run_in_threadpool(lambda: None)  # the request thread pool's first thread, up front
+        self.scheduler.start()
+        self._loader = asyncio.create_task(asyncio.to_thread(self.load_model))
+
+    async def stop(self) -> None:
+        if self._loader is not None and not self._loader.done():
+            self._loader.cancel()
+        self.scheduler.shutdown()
+        await self.store.close()
+
+    def load_model(self) -> None:
+        """Load the ONNX model and its card and build the engine (blocking; runs in a thread)."""
+        path = self.settings.model_path
+        start = time.perf_counter()
+        try:
+            model = ValueModel.load(path)
+            network, reason = network_decision(model.card, self.settings.network)
+            engine = engine_for(model, network=network)
+            compile_polygon_kernel()  # before readiness: a first call would stall the event loop
+        except Exception as exc:  # a missing or broken model must not stop the service
+            self.model_error = f"model not loaded: {exc}"
+            log.error("model not loaded", extra={"model_path": str(path), "error": str(exc)})
+            return
+        on_processes = self.settings.frt_executor == "process" and self._start_worker_processes(
+            path, engine, network
+        )
+        notch_cut = self.settings.frt_notch_cut and on_processes
+        if notch_cut:
+            # Not on threads: 0.1-1 s of work per refinement would hold the event loop's GIL.
+            self.scheduler.refinement = refine_by_notch_cut
+        self.engine = engine
+        self.card = model.card
+        self.parts = ActiveParts(
+            geometry=["outer_bound", *(["notch_partition"] if notch_cut else [])],
+            value_network=NetworkPart(loaded=True, active=network, reason=reason),
+        )
+        self.model_name = model.card.name
+        self.model_error = None
+        freeze_start_up_objects()
+        self.metrics.model_ready.set(1)
+        log.info(
+            "model loaded",
+            extra={
+                "model": model.card.name,
+                "model_path": str(path),
+                "seconds": round(time.perf_counter() - start, 3),
+            },
+        )
+
+    def _start_worker_processes(self, path: Path, engine: FRTEngine, network: bool) -> bool:
+        """Compute exact sets in worker processes (their engines loaded and warmed before the
+        server reports ready); if they cannot start, stay on threads and say why. Whether they
+        started."""
+        start = time.perf_counter()
+        workers = self.scheduler.workers
+        try:
+            pool = start_pool(
+                path,
+                workers,
+                self.settings.frt_worker_nice,
+                self.settings.frt_worker_policy,
+                network=network,
+            )
+        except Exception as exc:
+            log.warning(
+                "FRT worker processes not started: computing exact sets on threads",
+                extra={"error": repr(exc)},
+            )
+            return False
+        # A worker's first result costs ~20-50 ms more than the next ones (the first pickling there
+        # and unpickling here): one per worker before any request.
+        with contextlib.suppress(Exception):
+            for warm in [pool.submit(timed, warm_up_task(engine)) for _ in range(workers)]:
+                frt, _ = warm.result(60.0)
+            for kind, t in (("tube", None), ("slice", 1.0)):  # and the first contours drawn here
+                frt.geojson(kind, t, self.settings.collision_radius)
+        self.scheduler.use_executor(pool)
+        log.info(
+            "FRT worker processes started",
+            extra={"workers": workers, "seconds": round(time.perf_counter() - start, 3)},
+        )
+        return True
+
+    def require_card(self) -> ModelCard:
+        if self.card is None:
+            raise ServiceUnavailableError(self.model_error or "model not loaded")
+        return self.card
+
+    def require_engine(self) -> FRTEngine:
+        if self.engine is None:
+            raise ServiceUnavailableError(self.model_error or "model not loaded")
+        return self.engine
+
+    # ------------------------------------------------------------------ FRT sets
+    def job_for(self, state: AgentState) -> FRTJob:
+        return _job_of(
+            state.agent_id,
+            state.frt_version,
+            state.x,
+            state.y,
+            state.heading,
+            state.speed,
+            tuple(state.control_bounds),
+        )
+
+    def forget(self, agent_id: str) -> None:
+        """Drop every set of ``agent_id``, exact and conservative, and its queued exact set."""
+        self.scheduler.forget(agent_id)
+        self.conservative_cache.forget(agent_id)
+
+    def submit(self, job: FRTJob) -> None:
+        """Start computing the exact set of ``job`` in the background."""
+        self.scheduler.submit(job.key, self.exact_task(job))
+
+    def cached_exact(self, jobs: Sequence[FRTJob]) -> list[FRTSet | None]:
+        """Each job's exact set if it is computed already, else None; the hits are counted at once
+        (a planner's check of 50 agents: one counter update, not 50)."""
+        found = [self.scheduler.lookup(job.key) for job in jobs]
+        hits = sum(frt is not None for frt in found)
+        if hits:
+            self.metrics.frt_cache.labels("hit").inc(hits)
+        return found
+
+    def exact_futures(self, jobs: Sequence[FRTJob], timeout_s: float) -> list[Future[Any] | None]:
+        """Per job, the future of its exact set if it may be ready within ``timeout_s``, else None
+        (``FRTScheduler.waitable_many``; starts the sets nobody has)."""
+        return self.scheduler.waitable_many(
+            [(job.key, self.exact_task(job)) for job in jobs], timeout_s
+        )
+
+    async def exact_within(self, job: FRTJob, timeout_s: float) -> FRTSet | None:
+        """The exact set if it is ready within ``timeout_s`` (starting it if nobody has), else None."""
+        return await self.scheduler.wait(job.key, self.exact_task(job), timeout_s)
+
+    def exact_task(self, job: FRTJob) -> ExactTask:
+        """``engine.exact`` for ``job``: on this engine in a thread, on its own in a worker process."""
+        return ExactTask(job.pose, job.v_start, job.bounds, self.require_engine())
+
+    def refinement_state(self, exact: FRTSet | None, key: FRTKey) -> str | None:
+        """Of the ready exact set of ``key``: "done" if it is cut by the notch cut's last stage, or
+        by an earlier one whose next was skipped (it would have landed after the agent's next
+        observation: ``frt_refinement_stage`` says which), "failed" if a refinement raised (the
+        set stays the one before, which contains the cut one), "pending" if a stage is due
+        (``FRT_FRT_NOTCH_CUT`` and a set that may turn round; the first stage may have landed
+        already), else "not_needed"; None if no set."""
+        if exact is None:
+            return None
+        stage = exact.notch_stage
+        if stage >= len(NOTCH_STAGES) or (stage > 0 and self.scheduler.refinement_skipped(key)):
+            return "done"
+        if self.scheduler.refinement_failed(key):
+            return "failed"
+        due = self.scheduler.refinement is not None and exact.notch_possible
+        return "pending" if due else "not_needed"
+
+    @staticmethod
+    def refinement_stage(exact: FRTSet | None) -> int | None:
+        """Of the ready exact set: how many stages of the notch cut it has had (0: uncut); None if
+        no set."""
+        if exact is None:
+            return None
+        return exact.notch_stage
+
+    def conservative(self, job: FRTJob) -> FRTSet:
+        """The engine's fast set that contains the exact one (boxes only, ~1 ms here: built on
+        the caller's thread, less than a round trip to a worker process would cost).
+
+        Cached per key: each observation builds its version's set, so a planner's check of 50
+        agents whose exact sets are late looks them up instead of building 50 within its deadline.
+        """
+        engine = self.require_engine()
+
+        def compute() -> FRTSet:
+            start = time.perf_counter()
+            result = engine.conservative(job.pose, job.v_start, job.bounds)
+            elapsed = time.perf_counter() - start
+            self.metrics.frt_compute_seconds.labels("conservative").observe(elapsed)
+            return result
+
+        result, _ = self.conservative_cache.get_or_compute(job.key, compute)
+        return result  # type: ignore[no-any-return]
+
+    def horizon_s(self) -> float:
+        engine = self.engine
+        return float(engine.horizon) if engine is not None else self.settings.horizon_s
+
+
+def refine_by_notch_cut(compute: Callable[[], Any], result: Any) -> ExactTask | None:
+    """The scheduler's refinement (``FRT_FRT_NOTCH_CUT``): an exact set that could have a notch is
+    cut by each stage of the notch cut in turn once it is ready (``ExactTask.refinement``)."""
+    return compute.refinement(result) if isinstance(compute, ExactTask) else None
+
+
+def services_of(conn: HTTPConnection) -> Services:
+    """FastAPI dependency: the app's :class:`Services` (works for requests and WebSockets)."""
+    return conn.app.state.services  # type: ignore[no-any-return]

@@ -1,0 +1,93 @@
+"""Server settings, read from the environment (prefix ``FRT_``)."""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+from typing import Literal
+
+from pydantic import Field
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+from reach.contract import HORIZON_S, U1_LIMIT, U2_LIMIT
+from reach.notch import NOTCH_CUT_BY_DEFAULT
+
+DEFAULT_MODEL = Path(__file__).resolve().parent.parent / "models" / "frt_unicycle.onnx"
+
+
+class Settings(BaseSettings):
+    model_config = SettingsConfigDict(env_prefix="FRT_", extra="ignore")
+
+    model_path: Path = DEFAULT_MODEL
+    horizon_s: float = HORIZON_S
+    beta_low: float = Field(0.03, gt=0.0, lt=1.0)
+    #: The top hypothesis is the predictor taken as it is (covariance inflated by 1/beta = 1, paper
+    #: "Confidence estimation and update"); the filter's grid ends there, so no other value is
+    #: accepted (a value that would be ignored must not be settable).
+    beta_high: float = Field(1.0, ge=1.0, le=1.0)
+    gamma: float = Field(0.075, gt=0.0, lt=1.0)
+    #: Probability per observation that the belief resets to the prior (epsilon-static transition).
+    epsilon: float = Field(0.05, ge=0.0, lt=1.0)
+    collision_radius: float = Field(1.5, ge=0.0)
+    u1_limit: float = U1_LIMIT
+    u2_limit: float = U2_LIMIT
+    bounds_fit: str = "envelope"
+    max_agents: int = Field(10_000, ge=1)
+    agent_ttl_s: float = Field(300.0, gt=0.0)
+    max_body_bytes: int = Field(1_000_000, ge=1024)
+    max_prediction_steps: int = Field(64, ge=1)
+    max_trajectory_points: int = Field(1_000, ge=1)
+    auth_token: str | None = None
+    store_url: str | None = None
+
+    # Scheduling of the exact FRT and the latency budget of collision checks.
+    #: Workers computing exact FRTs in the background (CPU-bound: keep at or below the core count).
+    frt_workers: int = Field(2, ge=1, le=64)
+    #: "process": workers are processes, each with its own engine (the event loop keeps its GIL);
+    #: "thread": threads of the server process (also the fallback if processes cannot start).
+    frt_executor: Literal["process", "thread"] = "process"
+    #: How exact-set worker processes run below the server (``service.runtime.exact_worker.lower_priority``):
+    #: "idle" (SCHED_IDLE) only on CPUs with nothing else to run, which the server's wake-ups treat
+    #: as idle; "batch" (SCHED_BATCH plus ``frt_worker_nice``). On a busy machine the server's
+    #: requests run first and exact sets take what is left; checks answer from conservative sets
+    #: meanwhile.
+    frt_worker_policy: Literal["idle", "batch"] = "idle"
+    #: Niceness added to "batch" workers (19 kept the sustained bench's checks faster than 5 did).
+    frt_worker_nice: int = Field(19, ge=0, le=19)
+    #: Refine exact sets whose heading interval passes +-pi/2 (the car may turn round): once the
+    #: uncut set is ready (observation -> ready unchanged), a worker with nothing else to do cuts
+    #: it to the speed-coupled partition (``reach.engine.NotchCut``) and the cut set replaces it,
+    #: in two stages (``NOTCH_STAGES``: ~0.1 s, then 1-1.5 s if the version should still be current).
+    #: Tighter, still sound sets behind such cars for a worker's spare time. Only with worker
+    #: processes (``frt_executor``): on threads it would hold the event loop's GIL.
+    frt_notch_cut: bool = NOTCH_CUT_BY_DEFAULT
+    #: Exact FRTs kept in memory, keyed by (agent, FRT version, inputs): at most the two latest
+    #: versions of each agent (``service.runtime.scheduler.VERSIONS_PER_AGENT``); least recently used go first.
+    frt_cache_size: int = Field(1024, ge=1)
+    #: Default deadline of a collision check, measured from the request's arrival.
+    deadline_ms: float = Field(20.0, gt=0.0, le=60_000.0)
+    #: A check waits for a late exact set for at most this fraction of its deadline ...
+    deadline_wait_fraction: float = Field(0.5, ge=0.0, le=1.0)
+    #: ... and never into the deadline's last milliseconds, kept to answer conservatively.
+    deadline_reserve_ms: float = Field(1.0, ge=0.0)
+    #: How long contours and the stateless endpoint wait for an exact set before going conservative.
+    exact_timeout_s: float = Field(5.0, gt=0.0)
+    #: Agents one multi-agent collision check may name (or find, when it asks for all of them).
+    max_agents_per_check: int = Field(256, ge=1)
+    #: Time slices one contour request may ask for.
+    max_slices: int = Field(16, ge=1)
+
+    #: Whether sets are cut by the value network: "auto" evaluates it unless its model card's
+    #: evaluation found that it cuts nothing inside the certified geometry; "on", "off" force it.
+    network: Literal["auto", "on", "off"] = "auto"
+
+    # Logging: one JSON object per line on stderr.
+    log_level: str = "INFO"
+    log_json: bool = True
+    #: Log one line per HTTP request (method, route, status, duration).
+    log_requests: bool = True
+
+
+@lru_cache
+def get_settings() -> Settings:
+    return Settings()

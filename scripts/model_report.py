@@ -31,9 +31,9 @@ def render(card: dict) -> str:
         "Columns: share of sampled reachable states with V <= delta; share of rollout (x, y) cells "
         "inside the service's tube K(t); IoU of K(t) with the rollout cells; 95th percentile of how far "
         "K(t) reaches beyond the rollout cells; IoU of the union of the interval outer bound's 0.025 s "
-        "sweep polygons; IoU of the service's tube with the network's level at +inf (the engine's "
+        "sweep polygons; IoU of the service's tube with no value field (the engine's "
         "outer-bound construction alone: the difference to the IoU column is what the network "
-        "adds); then the speed-coupled partition bound (`reach.corridors.partition_tubes`, a "
+        "adds); then the speed-coupled partition bound (`reach.partition.partition_tubes`, a "
         "proven outer tube that has most of the notch behind a car that can turn round): its recall "
         'of rollout cells (must be 1), its IoU and "beyond" against the rollout cells, and how far '
         'the service\'s tube reaches beyond it (95th percentile over cells, as "beyond"): that '
@@ -169,7 +169,7 @@ def _served(acc: dict) -> list[str]:
     return [
         "The service's tube here is the set it serves once refined (`FRT_FRT_NOTCH_CUT`, on by "
         "default): the exact set, where the car may turn round, cut to a speed-coupled partition "
-        f"(`reach.engine.NOTCH_STAGES`: {described}), which a worker computes once the uncut "
+        f"(`reach.notch.NOTCH_STAGES`: {described}), which a worker computes once the uncut "
         "set is ready, one stage after the other. The last columns are the sets the service "
         "answers from until then: the uncut set, and the first stage's cut."
     ]

@@ -96,3 +96,12 @@ def test_the_service_says_which_parts_build_its_sets() -> None:
     assert "cuts nothing" in auto["value_network"]["reason"]
     assert auto["geometry"][0] == "outer_bound"
     assert _active("on")["value_network"]["active"] is True
+
+
+def test_default_model_path_is_the_shipped_model() -> None:
+    """A server started without FRT_MODEL_PATH serves the model shipped in models/."""
+    from service.runtime.settings import DEFAULT_MODEL
+
+    shipped = Path(__file__).resolve().parents[1] / "models" / "frt_unicycle.onnx"
+    assert DEFAULT_MODEL == shipped
+    assert DEFAULT_MODEL.is_file()

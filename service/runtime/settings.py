@@ -12,7 +12,7 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 from reach.contract import HORIZON_S, U1_LIMIT, U2_LIMIT
 from reach.notch import NOTCH_CUT_BY_DEFAULT
 
-DEFAULT_MODEL = Path(__file__).resolve().parent.parent / "models" / "frt_unicycle.onnx"
+DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "models" / "frt_unicycle.onnx"
 
 
 class Settings(BaseSettings):

@@ -167,6 +167,8 @@ class FieldTubeSet(FRTSet):
         self._outer_windows: np.ndarray | None = None
         self._outer_unions: dict[int, BaseGeometry] = {}
         self._hulls: dict[int, BaseGeometry] = {}
+        #: The last running minimum of the sweeps' fields taken (``_sweeps_minimum``).
+        self._last_minimum: tuple[int, SliceField | None] = (0, None)
         self._lock = threading.Lock()
 
     def __getstate__(self) -> dict[str, Any]:
@@ -176,7 +178,9 @@ class FieldTubeSet(FRTSet):
         so the regions they were drawn from are not needed there)."""
         state = vars(self).copy()
         del state["_lock"]
-        state.update(_outer_windows=None, _notch_regions={}, _notch_tubes={})
+        state.update(
+            _outer_windows=None, _notch_regions={}, _notch_tubes={}, _last_minimum=(0, None)
+        )
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
@@ -192,7 +196,7 @@ class FieldTubeSet(FRTSet):
         if cached is not None:
             return cached
         outer = self.outer_tube(j)
-        k_set = running_minimum(self.sweep[: j + 1]).contour(self.lattice)
+        k_set = self._sweeps_minimum(j).contour(self.lattice)
         if not k_set.is_empty:
             # The grid dilation already covers the node sampling; this covers the chords that
             # linear interpolation draws across the outer polygons' corners, and the cut to the
@@ -207,6 +211,19 @@ class FieldTubeSet(FRTSet):
         with self._lock:
             self._tubes[j] = k_set
         return k_set
+
+    def _sweeps_minimum(self, j: int) -> SliceField:
+        """``running_minimum(self.sweep[: j + 1])``, from the last one taken before j when there
+        is one (checks and workers draw a set's tubes mostly in increasing order)."""
+        with self._lock:
+            start, below = self._last_minimum
+        if below is None or start > j:
+            below, start = self.sweep[0], 0
+        for i in range(start + 1, j + 1):
+            below = running_minimum([below, self.sweep[i]])
+        with self._lock:
+            self._last_minimum = (j, below)
+        return below
 
     def _notch_region(self, j: int, before: bool = True, after: bool = True) -> BaseGeometry:
         """Every position reachable within half an instant of s_j, ``before`` and/or ``after`` it
@@ -376,8 +393,7 @@ class FieldTubeSet(FRTSet):
 
 def _filled_contour(xs: np.ndarray, ys: np.ndarray, z: np.ndarray, level: float) -> BaseGeometry:
     """The region {z <= level} of a node grid as a shapely geometry."""
-    generator = contourpy.contour_generator(xs, ys, z, fill_type="OuterOffset")
-    points, offsets = generator.filled(-np.inf, level)
+    points, offsets = _contour_generator(xs, ys, z).filled(-np.inf, level)
     polygons = []
     for pts, off in zip(points, offsets, strict=True):
         rings = [pts[off[i] : off[i + 1]] for i in range(len(off) - 1)]
@@ -387,3 +403,25 @@ def _filled_contour(xs: np.ndarray, ys: np.ndarray, z: np.ndarray, level: float)
     if not polygons:
         return shapely.Polygon()
     return shapely.make_valid(shapely.union_all(polygons))
+
+
+def _contour_generator(xs: np.ndarray, ys: np.ndarray, z: np.ndarray) -> contourpy.ContourGenerator:
+    """contourpy's default ("serial") filled-contour generator of ``z`` on the nodes ``xs`` x
+    ``ys``. Fields of finite values (every field of a set: nodes outside a window hold ``FAR``)
+    skip the masked-array scan of ``contourpy.contour_generator``, which costs more than the
+    contour of a lattice window; the generator and its arguments are the same."""
+    z = np.asarray(z, dtype=np.float64)
+    if not np.isfinite(z).all():
+        return contourpy.contour_generator(xs, ys, z, fill_type="OuterOffset")
+    x, y = np.meshgrid(np.asarray(xs, dtype=np.float64), np.asarray(ys, dtype=np.float64))
+    return contourpy.SerialContourGenerator(
+        x,
+        y,
+        z,
+        None,
+        corner_mask=True,
+        line_type=contourpy.LineType.SeparateCode,
+        fill_type=contourpy.FillType.OuterOffset,
+        quad_as_tri=False,
+        z_interp=contourpy.ZInterp.Linear,
+    )

@@ -97,6 +97,13 @@ class FRTSet:
         """The tubes among ``indices`` not drawn yet (none where tubes cost nothing to draw)."""
         return []
 
+    def draw_tubes(self, upto: int | None = None) -> None:
+        """Draw the tubes 0..``upto`` (None: every tube) not drawn yet, in increasing order (each
+        grows from the one before)."""
+        last = self.n_slices - 1 if upto is None else min(upto, self.n_slices - 1)
+        for j in self.missing_tubes(list(range(last + 1))):
+            self.tube(j)
+
     def nearest_built_tube(self, j: int) -> int:
         """The smallest tube index >= j already drawn (tubes grow with j: it contains tube j)."""
         return j

@@ -284,12 +284,18 @@ def conservative_answers(http: httpx.Client, reason: str) -> float:
 
 
 def test_tubes_not_drawn_in_time_give_a_conservative_answer_then_an_exact_one(
-    http: httpx.Client,
+    start_server,
 ) -> None:
-    """A time-indexed check on a fresh exact set whose deadline leaves no time to draw the tubes
-    up to each point's time (29 of them, ~0.8 ms each here) but enough to answer one agent is answered
-    against later tubes (which contain them) and says so; the missing tubes are drawn between
-    requests, and the same check is then exact."""
+    """With the workers drawing no tubes (``FRT_FRT_DRAW_TUBES=false``), a time-indexed check on a
+    fresh exact set whose deadline leaves no time to draw the tubes up to each point's time (29 of
+    them) but enough to answer one agent is answered against later tubes (which contain them) and
+    says so; the missing tubes are drawn between requests, and the same check is then exact."""
+    server = start_server(frt_draw_tubes="false")
+    with httpx.Client(base_url=server.url, timeout=10.0) as http:
+        _tubes_drawn_between_requests(http)
+
+
+def _tubes_drawn_between_requests(http: httpx.Client) -> None:
     agent = new_agent()
     http.post(f"/v1/agents/{agent}/observations", json=observation(0.0, x=3.0, y=2.0, speed=6.0))
     wait_exact(http, agent)

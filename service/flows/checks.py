@@ -157,6 +157,7 @@ async def answer_states(
     boxes_done = time.perf_counter()
     costs.conservative.record(boxes_done - start, len(boxes))
     chosen = {i: frt if frt is not None else conservative[i] for i, frt in enumerate(exact)}
+    _note_tube_demand(services, states, chosen, [t_rel(i) for i in range(len(states))])
     # The exact sets (FRTSet.clearance) together, in one vectorised call each; any other kind alone.
     pending = [i for i in chosen if i not in distances]
     plain = [i for i in pending if chosen[i].clearance_from_tubes]
@@ -211,6 +212,22 @@ async def answer_states(
             },
         )
     return results
+
+
+def _note_tube_demand(
+    services: Services,
+    states: Sequence[AgentState],
+    sets: dict[int, FRTSet],
+    t_rel: Sequence[np.ndarray | None],
+) -> None:
+    """Tell the workers which tubes of each agent's next sets this check would have needed
+    (``service.runtime.tube_demand``): the largest tube index of its points, 0 for a whole-tube
+    check (the engine draws the whole tube itself)."""
+    demand = services.tube_demand
+    for i, state in enumerate(states):
+        times = t_rel[i]
+        largest = 0 if times is None or not len(times) else int(sets[i].tube_indices(times).max())
+        demand.note(state.agent_id, largest)
 
 
 def _answer_in_time(

@@ -1,18 +1,18 @@
-"""Tubes of exact sets for time-indexed checks, within the check's deadline.
+"""Tubes of exact sets for time-indexed checks that the workers did not draw, within deadlines.
 
-A time-indexed check compares each point at time t with the tube up to t (API.md). An exact set
-arrives from its worker with the whole-horizon tube built; the tube up to each earlier instant is
-drawn the first time a check needs it (~1 ms each on the event loop), and a 20-point trajectory
-can need 20 of them per agent. A check draws them one by one while its deadline allows (the clock
-read before each, against a cost estimate that is rarely exceeded); for the points whose tubes are
-still missing then, each is checked against the smallest tube already drawn that ends no earlier
-than it does (the whole-horizon one at worst): tubes grow with time, so that set contains the
-point's own tube and the answer says ``conservative: true`` (API.md: "answer from a set that
-contains it"). The missing tubes are then drawn between requests, one per event-loop turn, for the
-next check.
+A time-indexed check compares each point at time t with the tube up to t (API.md). Worker processes
+draw the tubes an agent's checks ask for before sending its set back
+(``service.runtime.tube_demand``); a set computed on threads, or a check that asks for more tubes
+than the agent's checks did before, finds some missing. The check then draws them here one by one
+while its deadline allows (the clock read before each, against a cost estimate that is rarely
+exceeded); for the points whose tubes are still missing, each is checked against the smallest tube
+already drawn that ends no earlier than it does (the whole-horizon one at worst): tubes grow with
+time, so that set contains the point's own tube and the answer says ``conservative: true`` (API.md:
+"answer from a set that contains it"). The missing tubes are then drawn between requests, one per
+event-loop turn, for the next check.
 
-Only tubes actually drawn are timed: a tube drawn already returns at once, and counting those
-dragged the estimate to microseconds, after which one check drew 160 tubes in 140-200 ms.
+Only tubes actually drawn are timed: a tube drawn already returns at once and would drag the
+estimate towards zero.
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ import asyncio
 import math
 import time
 from collections import deque
+from collections.abc import Callable
 
 import numpy as np
 
@@ -37,7 +38,9 @@ class TubeBuilder:
     """Draws missing tubes now (while a check has the time) or between requests, and learns what
     one costs here."""
 
-    def __init__(self) -> None:
+    def __init__(self, on_drawn: Callable[[], None] | None = None) -> None:
+        #: Called once per tube drawn (the server counts them: ``frt_event_loop_tubes``).
+        self.on_drawn = on_drawn
         self.cost = CostEstimate(mean_s=INITIAL_COST_S, deviation_s=INITIAL_COST_S / 2)
         #: Seconds spent drawing tubes so far (checks take their own share out of their timing).
         self.spent_s = 0.0
@@ -56,6 +59,8 @@ class TubeBuilder:
             spent = time.perf_counter() - start
             self.spent_s += spent
             self.cost.record(spent, 1)
+            if self.on_drawn is not None:
+                self.on_drawn()
         return True
 
     def later(self, frt: FRTSet, indices: list[int]) -> None:

@@ -44,7 +44,10 @@ log = logging.getLogger("frt.exact_worker")
 @dataclass
 class ExactTask:
     """``engine.exact(pose, v_start, bounds, notch_cut, notch_stage)``: with the given engine
-    (threads) or, once pickled to a worker process, with that process's own."""
+    (threads) or, once pickled to a worker process, with that process's own. The set's tubes
+    0..``tubes_upto`` are drawn before it is returned (``FRTSet.draw_tubes``; -1: none but those
+    the engine draws), so that time-indexed checks find them instead of drawing them on the event
+    loop (``service.runtime.tube_demand``)."""
 
     pose: Pose
     v_start: float
@@ -52,22 +55,34 @@ class ExactTask:
     engine: FRTEngine | None = field(default=None, repr=False, compare=False)
     notch_cut: bool = False
     notch_stage: int | None = None
+    tubes_upto: int = -1
 
     def __reduce__(self) -> tuple[Any, ...]:
-        fields = (self.pose, self.v_start, self.bounds, None, self.notch_cut, self.notch_stage)
+        fields = (
+            self.pose,
+            self.v_start,
+            self.bounds,
+            None,
+            self.notch_cut,
+            self.notch_stage,
+            self.tubes_upto,
+        )
         return ExactTask, fields
 
     def __call__(self) -> FRTSet:
         engine = self.engine if self.engine is not None else _engine
         if engine is None:
             raise RuntimeError("no engine in this process")
-        return engine.exact(
+        frt = engine.exact(
             self.pose,
             self.v_start,
             self.bounds,
             notch_cut=self.notch_cut,
             notch_stage=self.notch_stage,
         )
+        if self.tubes_upto >= 0:
+            frt.draw_tubes(self.tubes_upto)
+        return frt
 
     @property
     def stage(self) -> int:

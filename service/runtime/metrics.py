@@ -32,6 +32,12 @@ class Metrics:
             buckets=LATENCY_BUCKETS,
             registry=r,
         )
+        self.event_loop_tubes = Counter(
+            "frt_event_loop_tubes",
+            "Tubes of exact sets drawn on the server's event loop for time-indexed checks (the "
+            "workers draw the ones an agent's checks ask for: service.runtime.tube_demand)",
+            registry=r,
+        )
         self.frt_compute_seconds = Histogram(
             "frt_compute_seconds",
             "Time to compute one FRT set (exact: background; conservative: fallback)",

@@ -39,6 +39,7 @@ from service.runtime.priority import ChecksFirst
 from service.runtime.scheduler import FRTKey, FRTScheduler, LRUCache, timed
 from service.runtime.settings import Settings
 from service.runtime.store import AgentState, AgentStore, make_store
+from service.runtime.tube_demand import TubeDemand
 
 log = logging.getLogger("frt.services")
 
@@ -96,6 +97,11 @@ class Services:
     tubes: TubeBuilder = field(default_factory=TubeBuilder, repr=False)
     #: Holds observations' numerical work back while collision checks are in flight.
     priority: ChecksFirst = field(default_factory=ChecksFirst, repr=False)
+    #: Which tubes each agent's checks ask for: the workers draw those (``frt_draw_tubes``).
+    tube_demand: TubeDemand = field(default_factory=lambda: TubeDemand(4096), repr=False)
+    #: Whether worker processes draw the tubes checks ask for before sending a set back
+    #: (``Settings.frt_draw_tubes`` and worker processes running).
+    _tubes_in_workers: bool = field(default=False, repr=False)
 
     @classmethod
     def build(cls, settings: Settings) -> Services:
@@ -112,6 +118,7 @@ class Services:
             store=store,
             scheduler=scheduler,
             conservative_cache=LRUCache(settings.frt_cache_size),
+            tubes=TubeBuilder(on_drawn=metrics.event_loop_tubes.inc),
         )
 
     # ------------------------------------------------------------------ lifecycle
@@ -144,6 +151,7 @@ class Services:
             path, engine, network
         )
         notch_cut = self.settings.frt_notch_cut and on_processes
+        self._tubes_in_workers = self.settings.frt_draw_tubes and on_processes
         if notch_cut:
             # Not on threads: 0.1-1 s of work per refinement would hold the event loop's GIL.
             self.scheduler.refinement = refine_by_notch_cut
@@ -226,6 +234,7 @@ class Services:
         """Drop every set of ``agent_id``, exact and conservative, and its queued exact set."""
         self.scheduler.forget(agent_id)
         self.conservative_cache.forget(agent_id)
+        self.tube_demand.forget(agent_id)
 
     def submit(self, job: FRTJob) -> None:
         """Start computing the exact set of ``job`` in the background."""
@@ -253,7 +262,13 @@ class Services:
 
     def exact_task(self, job: FRTJob) -> ExactTask:
         """``engine.exact`` for ``job``: on this engine in a thread, on its own in a worker process."""
-        return ExactTask(job.pose, job.v_start, job.bounds, self.require_engine())
+        return ExactTask(
+            job.pose,
+            job.v_start,
+            job.bounds,
+            self.require_engine(),
+            tubes_upto=self.tube_demand.upto(job.key.agent_id) if self._tubes_in_workers else -1,
+        )
 
     def refinement_state(self, exact: FRTSet | None, key: FRTKey) -> str | None:
         """Of the ready exact set of ``key``: "done" if it is cut by the notch cut's last stage, or

@@ -61,6 +61,11 @@ class Settings(BaseSettings):
     #: Tighter, still sound sets behind such cars for a worker's spare time. Only with worker
     #: processes (``frt_executor``): on threads it would hold the event loop's GIL.
     frt_notch_cut: bool = NOTCH_CUT_BY_DEFAULT
+    #: Worker processes draw the tubes an agent's time-indexed checks ask for
+    #: (``service.runtime.tube_demand``) before sending its exact set back, so a check finds the
+    #: tube of each of its points drawn and answers from the exact set; off, the event loop draws
+    #: them within checks' deadlines and between requests.
+    frt_draw_tubes: bool = True
     #: Exact FRTs kept in memory, keyed by (agent, FRT version, inputs): at most the two latest
     #: versions of each agent (``service.runtime.scheduler.VERSIONS_PER_AGENT``); least recently used go first.
     frt_cache_size: int = Field(1024, ge=1)

@@ -103,5 +103,5 @@ def test_default_model_path_is_the_shipped_model() -> None:
     from service.runtime.settings import DEFAULT_MODEL
 
     shipped = Path(__file__).resolve().parents[1] / "models" / "frt_unicycle.onnx"
-    assert DEFAULT_MODEL == shipped
+    assert shipped == DEFAULT_MODEL
     assert DEFAULT_MODEL.is_file()

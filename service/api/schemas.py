@@ -340,6 +340,19 @@ class FRTResponse(Response):
     horizon_s: float
     collision_radius: float
     conservative: bool
+    refinement_stage: int | None = Field(
+        None,
+        description="how many stages of the notch cut the set answered from has had (0: the "
+        "uncut exact set, which contains the cut ones: a set that may turn round is answered "
+        "uncut unless the same request came before and its refinement has landed since); null "
+        "when the answer is conservative",
+    )
+    refinement: Literal["not_needed", "pending", "done", "failed"] | None = Field(
+        None,
+        description="as an agent's frt_refinement: whether a tighter set of the same inputs is "
+        "being computed in the background (asking again may answer from it); null when the "
+        "answer is conservative",
+    )
     contours: Contours | None
     collision: CollisionAnswer | None
 

@@ -1,5 +1,11 @@
 """The stateless FRT (``POST /v1/frt``): a state and control bounds (or a prediction and beta) in,
-contours and/or a collision answer out. Results are cached by their inputs like agents' sets."""
+contours and/or a collision answer out. Results are cached by their inputs like agents' sets.
+
+The answer comes from the first exact set of its inputs: a set that may turn round is refined by
+the notch cut in the background (``service.runtime.scheduler``) after it is answered, so a first
+request answers from the uncut set, which contains the cut one, and says so
+(``refinement_stage`` 0, ``refinement`` "pending"); the same request later answers from the
+refined set once it has landed."""
 
 from __future__ import annotations
 
@@ -77,6 +83,8 @@ async def stateless_frt(services: Services, request: FRTRequest, arrival: float)
             horizon_s=horizon,
             collision_radius=radius,
             conservative=exact is None,
+            refinement_stage=services.refinement_stage(exact),
+            refinement=services.refinement_state(exact, job.key),
             contours=None if query is None else build(frt, query, radius, request.timestamp),
             collision=None
             if request.trajectory is None

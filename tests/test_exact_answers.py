@@ -10,6 +10,7 @@ point clearer than the tube up to the point's time.
 
 from __future__ import annotations
 
+import time
 import uuid
 from pathlib import Path
 
@@ -92,3 +93,40 @@ def test_a_time_indexed_check_of_a_ready_set_is_exact(shipped_server: LiveServer
             )
             conservative = check(http, agent, points, "time_indexed")
             assert conservative["clearance"] == timed["clearance"]  # the same set, answered again
+
+
+TURNING = {
+    "u1_min_start": -0.8, "u2_min_start": -1.0, "u1_min_end": -0.8, "u2_min_end": -1.0,
+    "u1_max_start": 0.8, "u2_max_start": 1.0, "u1_max_end": 0.8, "u2_max_end": 1.0,
+}  # fmt: skip
+
+
+def tube_area(body: dict) -> float:
+    from shapely.geometry import shape
+
+    return shape(body["contours"]["tube"]["K"]).area
+
+
+def test_the_stateless_frt_says_when_it_answers_from_the_uncut_set(
+    shipped_server: LiveServer,
+) -> None:
+    """A car that may turn round within the horizon: the first answer is the exact set before the
+    notch cut (stage 0, refinement pending); asked again, the refined set, never larger."""
+    request = {
+        "state": {"x": 1.0, "y": -2.0, "heading": 0.3, "speed": 3.0},
+        "control_bounds": TURNING,
+        "contours": {"slices": [], "include": ["K"]},
+    }
+    with httpx.Client(base_url=shipped_server.url, timeout=30.0) as http:
+        first = http.post("/v1/frt", json=request).json()
+        assert first["conservative"] is False
+        assert first["refinement_stage"] == 0 and first["refinement"] == "pending"
+        later = first
+        for _ in range(200):
+            later = http.post("/v1/frt", json=request).json()
+            if later["refinement_stage"] > 0:
+                break
+            time.sleep(0.05)
+        assert later["refinement_stage"] > 0, "the refinement never landed"
+        assert later["refinement"] in ("pending", "done")
+        assert tube_area(later) <= tube_area(first) + 1e-9

@@ -84,6 +84,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, default=ROOT / "results" / "load.json")
     p.add_argument("--keep-agents", action="store_true", help="do not delete the run's agents")
+    p.add_argument(
+        "--model",
+        type=Path,
+        default=ROOT / "models" / "frt_unicycle.onnx",
+        help="the served model, to measure the fallback's area against the exact set's "
+        "on the humans' last states (in this process)",
+    )
     return p.parse_args(argv)
 
 
@@ -246,6 +253,7 @@ class Stats:
     error_samples: list[str] = field(default_factory=list)
     over_deadline: int = 0
     conservative: int = 0
+    answers: int = 0  # per-agent answers of all checks
     skipped_ticks: int = 0
 
     def record(self, op: str, at: float, seconds: float) -> None:
@@ -349,11 +357,32 @@ async def plan(
         seconds = time.perf_counter() - started
         stats.record("check", t, seconds)
         stats.conservative += sum(1 for r in answer.results if r.conservative)
+        stats.answers += len(answer.results)
         if seconds * 1000.0 > args.deadline_ms:
             stats.over_deadline += 1
 
 
 # ------------------------------------------------------------------------------ the server side
+
+
+def fallback_area(model: Path, agents: list[Any]) -> dict[str, float | int | None]:
+    """Mean ratio of the conservative set's whole-horizon area to the exact set's, of K and C,
+    over the humans' last states (``scripts/fallback_cost.py``; computed here, off the clock)."""
+    from reach.frames import Pose
+    from scripts.fallback_cost import BOUND_NAMES, area_ratio, mean_ratio, served_engine
+
+    if not agents or not model.is_file():
+        return {"k": None, "c": None, "agents": 0}
+    engine = served_engine(model)
+    ratios = []
+    for agent in agents:
+        state = agent.state
+        bounds = [getattr(agent.control_bounds, name) for name in BOUND_NAMES]
+        pose = Pose(state["x"], state["y"], state["heading"])
+        radius = agent.config.collision_radius if agent.config is not None else 1.5
+        ratios.append(area_ratio(engine, pose, state["speed"], bounds, radius))
+    mean = mean_ratio(ratios)
+    return {"k": mean.k, "c": mean.c, "agents": len(ratios)}
 
 
 async def server_counters(url: str) -> dict[str, float]:
@@ -489,6 +518,17 @@ def print_report(summary: dict[str, Any]) -> None:
         f"conservative answers: {d['conservative_answers']}   skipped ticks: "
         f"{summary['skipped_ticks']}"
     )
+    share, area = d["exact_share"], summary["fallback_area_ratio"]
+    if share is not None:
+        print(
+            f"exact answers: {d['answers'] - d['conservative_answers']} of {d['answers']} "
+            f"per-agent answers ({100.0 * share:.1f} %)"
+        )
+    if area["k"] is not None:
+        print(
+            f"fallback area / exact area (whole tube, mean over the humans' last states): "
+            f"K {area['k']:.2f}x, C {area['c']:.2f}x"
+        )
     v = summary["verification"]
     print(
         f"beta check: {v['verified']}/{v['agents']} agents verified, lost or reordered updates: "
@@ -588,6 +628,11 @@ async def run(args: argparse.Namespace) -> tuple[dict[str, Any], Stats]:
 
         after = await server_counters(args.url)
         verification = await verify(client, humans, expectations)
+        finals = []
+        for human in humans:
+            with contextlib.suppress(FRTError):
+                finals.append(await client.get_agent(human.agent_id))
+        area = fallback_area(args.model, finals)
         if not args.keep_agents:
             for agent in agent_ids:
                 with contextlib.suppress(FRTError):
@@ -617,7 +662,10 @@ async def run(args: argparse.Namespace) -> tuple[dict[str, Any], Stats]:
             "conservative_answers": stats.conservative,
             "server_conservative": delta("conservative"),
             "server_exact": delta("exact"),
+            "answers": stats.answers,
+            "exact_share": 1.0 - stats.conservative / stats.answers if stats.answers else None,
         },
+        "fallback_area_ratio": area,
         "skipped_ticks": stats.skipped_ticks,
         "verification": verification,
         "ok": errors == 0

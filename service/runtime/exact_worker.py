@@ -103,11 +103,12 @@ class ExactTask:
 def init_worker(
     model_path: str, nice: int, parent_pid: int, policy: str = "idle", network: bool = True
 ) -> None:
-    """Process initializer: a scheduling policy below the server's, load the engine (configured as
-    the server's: cut by the network if ``network``), warm it, watch the parent."""
+    """Process initializer: load the engine (configured as the server's: cut by the network if
+    ``network``), warm it, watch the parent, then take a scheduling policy below the server's.
+    Start-up runs at the server's priority: on a machine kept busy by other processes a worker
+    below them would take minutes to load, and the server is not ready until it has."""
     global _engine
     keep_freed_memory()
-    lower_priority(policy, nice)
     from models.runtime import ValueModel
     from models.value_fields import ProjectionField, engine_for
 
@@ -124,6 +125,7 @@ def init_worker(
         field.model.evaluate_projection(np.zeros((4 * _engine.max_nodes, N_INPUTS), np.float32))
     threading.Thread(target=_exit_with_parent, args=(parent_pid,), daemon=True).start()
     freeze_start_up_objects()
+    lower_priority(policy, nice)
 
 
 def lower_priority(policy: str, nice: int) -> None:

@@ -172,7 +172,7 @@ def bench_http_floor(client: httpx.Client, n: int) -> dict:
 
 
 #: How far apart the bench observes the wide agent while it times the refinement's last stage: a
-#: version that lives this long gets it (``FRTScheduler._lands_in_time``).
+#: version that lives this long gets it (``RefinementQueue.lands_in_time``).
 FINE_PERIOD_S = 1.5
 
 

@@ -22,6 +22,7 @@ from reach.frames import Pose
 from reach.notch import NOTCH_STAGES
 from service.runtime.exact_worker import ExactTask
 from service.runtime.metrics import Metrics
+from service.runtime.refiner import Refinement
 from service.runtime.scheduler import FRTKey, FRTScheduler
 from service.runtime.services import refine_by_notch_cut
 
@@ -40,8 +41,10 @@ class Refinable:
         return self.value
 
 
-def refine(compute: Callable[[], Any], result: Any) -> Callable[[], Any] | None:
-    return compute.refined if isinstance(compute, Refinable) else None
+def refine(compute: Callable[[], Any], result: Any) -> Refinement | None:
+    if isinstance(compute, Refinable) and compute.refined is not None:
+        return Refinement(compute.refined)
+    return None
 
 
 @pytest.fixture
@@ -106,8 +109,11 @@ class Stage:
         return self.name
 
 
-def staged_refine(compute: Callable[[], Any], result: Any) -> Callable[[], Any] | None:
-    return getattr(compute, "refined", None)
+def staged_refine(compute: Callable[[], Any], result: Any) -> Refinement | None:
+    refined = compute.refined if isinstance(compute, Stage | Refinable) else None
+    if refined is None:
+        return None
+    return Refinement(refined, stage=refined.stage if isinstance(refined, Stage) else 1)
 
 
 def test_a_refined_set_replaces_the_ready_one(scheduler: FRTScheduler) -> None:
@@ -246,7 +252,7 @@ def test_refinements_start_newest_first_unless_the_oldest_has_waited(
 ) -> None:
     """The version observed last has the most life left to be served, so its refinement goes
     first; one that has waited REFINE_OLDEST_AFTER_S goes before it."""
-    monkeypatch.setattr("service.runtime.scheduler.REFINE_OLDEST_AFTER_S", oldest_after_s)
+    monkeypatch.setattr("service.runtime.refiner.REFINE_OLDEST_AFTER_S", oldest_after_s)
     gate = threading.Event()
     started: list[str] = []
 
@@ -364,7 +370,9 @@ def test_the_service_refines_sets_that_may_turn_round_by_the_notch_cut(
     task = ExactTask(Pose(3.0, -2.0, 0.4), wide.v_start, wide.bounds(), engine)
     uncut = task()
     assert uncut.notch is None and uncut.notch_possible
-    follow_up = refine_by_notch_cut(task, uncut)
+    refinement = refine_by_notch_cut(task, uncut)
+    assert refinement is not None and refinement.stage == 1
+    follow_up = refinement.compute
     assert isinstance(follow_up, ExactTask) and follow_up.notch_cut and follow_up.stage == 1
     cut = follow_up()
     last = cut.n_slices - 1
@@ -375,7 +383,9 @@ def test_the_service_refines_sets_that_may_turn_round_by_the_notch_cut(
     # polygons) and smaller, until the last, which has none.
     task, coarser = follow_up, cut
     for stage in range(2, len(NOTCH_STAGES) + 1):
-        task = refine_by_notch_cut(task, coarser)
+        refinement = refine_by_notch_cut(task, coarser)
+        assert refinement is not None and refinement.stage == stage
+        task = refinement.compute
         assert isinstance(task, ExactTask) and task.stage == stage
         finer = task()
         assert finer.notch is not None and finer.notch.stage == stage

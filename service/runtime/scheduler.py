@@ -9,9 +9,10 @@ from the engine's conservative set. Results are keyed by agent, version *and* a 
 so a cached set can never answer for other inputs (e.g. an agent deleted and created again, whose
 versions restart, or another replica's state).
 
-A set may be *refined* after it is ready (:attr:`FRTScheduler.refinement`): a tighter set of the
-same key, computed when no exact set is waiting and on at most ``workers - 1`` workers, replaces the
-cached one. Readiness (and so observation -> ready) is the first set's; both contain the true set.
+A set may be *refined* after it is ready (:attr:`FRTScheduler.refinement`, the queue of
+``service.runtime.refiner``): a tighter set of the same key, computed when no exact set is waiting
+and on at most ``workers - 1`` workers, replaces the cached one. Readiness (and so observation ->
+ready) is the first set's; both contain the true set.
 """
 
 from __future__ import annotations
@@ -20,7 +21,6 @@ import asyncio
 import functools
 import hashlib
 import logging
-import math
 import struct
 import threading
 import time
@@ -31,12 +31,9 @@ from dataclasses import dataclass
 from typing import Any
 
 from service.runtime.metrics import Metrics
+from service.runtime.refiner import Refinement, RefinementQueue, RefinementRule
 
 log = logging.getLogger("frt.scheduler")
-
-#: Queued refinements by slot (agent, or key for the stateless endpoint): the key, its compute and
-#: when it was queued.
-_RefineQueue = OrderedDict[Hashable, tuple["FRTKey", Callable[[], Any], float]]
 
 
 @dataclass(frozen=True)
@@ -58,14 +55,6 @@ class FRTKey:
 #: garbage collector to walk: ~60 polygons per exact set once its tubes are drawn, 80 000 objects
 #: and full collections of 25-35 ms under the load test.
 VERSIONS_PER_AGENT = 2
-
-#: Refinements start newest first: the version observed last has the most of its life left to be
-#: served (``scripts/refinement_landing.py``, five agents observed at 2 Hz, side by side: 35 of 153
-#: refinements landed on their agent's current set oldest first, 126 newest first; two at 5 Hz,
-#: 64 and 65 of 144, where a version lives about as long as its refinement takes). One
-#: queued this long goes next all the same, so that an agent observed rarely, whose version stays
-#: current, is not passed over for ever by agents observed often.
-REFINE_OLDEST_AFTER_S = 1.0
 
 
 class LRUCache:
@@ -173,30 +162,22 @@ class FRTScheduler:
         self._started: dict[FRTKey, float] = {}
         self._typical_s = 0.0
         self._discard: set[FRTKey] = set()  # running for a forgotten agent: do not cache
-        #: Given a finished set's compute and result, the compute of a tighter set of the same key
-        #: (or None): queued one per agent, run when no exact set waits (``_dispatch``). Asked
-        #: again of each refinement that lands, so refinements may come in stages.
-        self.refinement: Callable[[Callable[[], Any], Any], Callable[[], Any] | None] | None = None
-        #: Per agent (or key): its latest version's refinement and when it was queued. A set's
-        #: first refinement waits in the first queue, further stages in the second, which runs
-        #: only while the first is empty: a quick first cut of every agent before any fine one.
-        self._refine_queue: _RefineQueue = OrderedDict()
-        self._refine_later: _RefineQueue = OrderedDict()
-        self._refining: set[FRTKey] = set()
-        #: Per agent, when its last two versions were submitted (as many agents as the cache holds
-        #: sets), and per refinement stage how long one takes (moving average): whether a later
-        #: stage would land before the agent's next version (``_lands_in_time``).
-        self._version_times: OrderedDict[str, tuple[int, float, float]] = OrderedDict()
-        self._refine_typical_s: dict[int, float] = {}
-        #: Keys whose refinement raised, newest last (as many as the cache holds sets).
-        self._refine_failed: OrderedDict[FRTKey, None] = OrderedDict()
-        #: Keys whose later refinement stage was skipped (``_lands_in_time``), likewise.
-        self._refine_skipped: OrderedDict[FRTKey, None] = OrderedDict()
+        self._refinements = RefinementQueue(metrics, remembered=cache_size)
         self._lock = threading.RLock()  # done-callbacks may run inline in submit()
 
     @property
     def workers(self) -> int:
         return self._workers
+
+    @property
+    def refinement(self) -> RefinementRule | None:
+        """Given a finished set's compute and result, the refinement of the same key (or None):
+        asked again of each refinement that lands, so refinements may come in stages."""
+        return self._refinements.rule
+
+    @refinement.setter
+    def refinement(self, rule: RefinementRule | None) -> None:
+        self._refinements.rule = rule
 
     def start(self) -> None:
         with self._lock:
@@ -218,8 +199,7 @@ class FRTScheduler:
             executor, self._executor = self._executor, None
             queued = [self._pending.pop(key) for key in self._queue.values()]
             self._queue.clear()
-            self._refine_queue.clear()
-            self._refine_later.clear()
+            self._refinements.clear()
         for job in queued:
             job.future.cancel()
         if executor is not None:
@@ -265,37 +245,9 @@ class FRTScheduler:
             self._pending[key] = _Job(compute, future)
             self._queue[slot] = key  # an existing slot keeps its place
             if key.agent_id:
-                self._note_version(key)
+                self._refinements.note_version(key)
         self._dispatch()
         return future
-
-    def _note_version(self, key: FRTKey) -> None:
-        """Remember when ``key``'s agent's latest versions came (called with the lock held)."""
-        now = time.perf_counter()
-        known = self._version_times.get(key.agent_id)
-        if known is None:
-            self._version_times[key.agent_id] = (key.version, -math.inf, now)
-        elif key.version > known[0]:
-            self._version_times[key.agent_id] = (key.version, known[2], now)
-        self._version_times.move_to_end(key.agent_id)
-        while len(self._version_times) > self._cache_size:
-            self._version_times.popitem(last=False)
-
-    def _lands_in_time(self, key: FRTKey, compute: Callable[[], Any]) -> bool:
-        """Whether a later stage's refinement of ``key`` is expected to land while ``key`` is its
-        agent's current version (called with the lock held): if the agent's next version comes as
-        long after this one as this one came after the one before, and the stage takes as long as
-        it has (moving average). A later stage is slow; one that would be stale on landing would
-        only hold the refining worker from the next version's first stage."""
-        known = self._version_times.get(key.agent_id) if key.agent_id else None
-        typical = self._refine_typical_s.get(getattr(compute, "stage", 1))
-        if known is not None and known[0] > key.version:
-            return False  # superseded already
-        if known is None or typical is None:
-            return True
-        _, previous, latest = known
-        interval = latest - previous
-        return time.perf_counter() - latest + typical < interval
 
     async def wait(self, key: FRTKey, compute: Callable[[], Any], timeout_s: float) -> Any | None:
         """The exact set for ``key`` if it is (or becomes) ready within ``timeout_s``, else ``None``.
@@ -366,9 +318,9 @@ class FRTScheduler:
             self._cache.forget(agent_id)
             queued = self._queue.pop(agent_id, None)
             job = self._pending.pop(queued) if queued is not None else None
-            self._drop_queued_refinement(agent_id)
+            self._refinements.drop(agent_id)
             self._discard.update(
-                k for k in self._running | self._refining if k.agent_id == agent_id
+                k for k in self._running | self._refinements.running if k.agent_id == agent_id
             )
         if job is not None:
             job.future.cancel()
@@ -380,7 +332,7 @@ class FRTScheduler:
             with self._lock:
                 if self._executor is None:
                     return
-                if len(self._running) + len(self._refining) >= self._workers:
+                if len(self._running) + len(self._refinements.running) >= self._workers:
                     return
                 if not self._queue:
                     self._dispatch_refinements()
@@ -401,47 +353,24 @@ class FRTScheduler:
             handle.add_done_callback(functools.partial(self._finished, key))
 
     def _dispatch_refinements(self) -> None:
-        """Start queued refinements on free workers, keeping one worker for exact sets (called with
-        the lock held and no exact set queued): first stages before later ones; in each queue the
-        newest first, or the oldest once it has waited REFINE_OLDEST_AFTER_S. A refinement whose
-        set left the cache (a newer version, or forgotten) is dropped."""
+        """Start queued refinements (``RefinementQueue.next``) on free workers, keeping one worker
+        for exact sets (called with the lock held and no exact set queued)."""
         executor = self._executor
         assert executor is not None
-        while len(self._refining) < max(self._workers - 1, 1):
-            if len(self._running) + len(self._refining) >= self._workers:
+        refinements = self._refinements
+        while len(refinements.running) < max(self._workers - 1, 1):
+            if len(self._running) + len(refinements.running) >= self._workers:
                 return
-            queue = self._refine_queue or self._refine_later
-            if not queue:
+            entry = refinements.next(lambda key: key in self._cache)
+            if entry is None:
                 return
-            oldest = next(iter(queue.values()))
-            waited = time.perf_counter() - oldest[2]
-            _, (key, compute, _) = queue.popitem(last=waited < REFINE_OLDEST_AFTER_S)
-            if key not in self._cache:
-                self._count_refinement("dropped", compute)
-                continue
-            if queue is self._refine_later and not self._lands_in_time(key, compute):
-                self._count_refinement("skipped", compute)
-                self._remember(self._refine_skipped, key)
-                continue
-            self._refining.add(key)
+            refinements.running.add(entry.key)
             try:
-                handle = executor.submit(timed, compute)
+                handle = executor.submit(timed, entry.refinement.compute)
             except Exception as exc:
                 handle = Future()
                 handle.set_exception(exc)
-            handle.add_done_callback(functools.partial(self._refined, key, compute))
-
-    def _count_refinement(self, outcome: str, compute: Callable[[], Any]) -> None:
-        """``frt_refinements_total`` by outcome and stage (the compute's ``stage``, else 1)."""
-        stage = str(getattr(compute, "stage", 1))
-        self._metrics.refinements.labels(outcome, stage).inc()
-
-    def _drop_queued_refinement(self, slot: Hashable) -> None:
-        """Drop the refinement queued in ``slot``, in either queue (called with the lock held)."""
-        for queue in (self._refine_queue, self._refine_later):
-            entry = queue.pop(slot, None)
-            if entry is not None:
-                self._count_refinement("dropped", entry[1])
+            handle.add_done_callback(functools.partial(self._refined, entry.key, entry.refinement))
 
     def _superseded(self, key: FRTKey) -> bool:
         """Whether a later version of ``key``'s agent is queued, running or cached (called with the
@@ -459,67 +388,58 @@ class FRTScheduler:
         """Whether the refinement of ``key``'s set raised (it then stays the set first made
         ready)."""
         with self._lock:
-            return key in self._refine_failed
+            return self._refinements.failed(key)
 
     def refinement_skipped(self, key: FRTKey) -> bool:
-        """Whether a later stage of ``key``'s refinement was skipped (``_lands_in_time``): its
-        set stays as the stage before left it."""
+        """Whether a later stage of ``key``'s refinement was skipped
+        (``RefinementQueue.lands_in_time``): its set stays as the stage before left it."""
         with self._lock:
-            return key in self._refine_skipped
-
-    def _remember(self, keys: OrderedDict[FRTKey, None], key: FRTKey) -> None:
-        """Add ``key`` to ``keys``, which hold as many as the cache holds sets (called with the
-        lock held)."""
-        keys[key] = None
-        while len(keys) > self._cache_size:
-            keys.popitem(last=False)
+            return self._refinements.skipped(key)
 
     def _queue_refinement(
         self, key: FRTKey, compute: Callable[[], Any], result: Any, later: bool = False
     ) -> None:
         """Queue the refinement of ``key``'s set ``result`` (made by ``compute``), if there is one:
         in the second queue if ``result`` is itself a refinement (``later``)."""
-        refine = self.refinement
-        follow_up = refine(compute, result) if refine is not None else None
+        rule = self._refinements.rule
+        follow_up = rule(compute, result) if rule is not None else None
         if follow_up is None:
             return
         with self._lock:
-            slot: Hashable = key.agent_id or key
-            self._drop_queued_refinement(slot)  # the newer one goes to the back
-            queue = self._refine_later if later else self._refine_queue
-            queue[slot] = (key, follow_up, time.perf_counter())
+            self._refinements.queue(key, follow_up, later)
 
-    def _refined(self, key: FRTKey, compute: Callable[[], Any], handle: Future[Any]) -> None:
+    def _refined(self, key: FRTKey, refinement: Refinement, handle: Future[Any]) -> None:
         """A refinement is done: its set replaces the cached one of the same key (if still
         cached; a newer version or a forgotten agent drops it), and its own refinement, if any, is
         queued while the set is its agent's current one."""
         follow = False
+        refinements = self._refinements
+        stage = refinement.stage
         with self._lock:
-            self._refining.discard(key)
+            refinements.running.discard(key)
             discard = key in self._discard
             self._discard.discard(key)
             error = handle.exception() if not handle.cancelled() else CancelledError()
             if error is None:
-                landed = not discard and self._cache.replace(key, handle.result()[0])
+                result, seconds = handle.result()
+                landed = not discard and self._cache.replace(key, result)
                 outcome = "wasted"
                 if landed:
                     outcome = "stale" if self._superseded(key) else "landed"
-                    self._metrics.frt_compute_seconds.labels("refined").observe(handle.result()[1])
-                stage = getattr(compute, "stage", 1)
-                typical = self._refine_typical_s.get(stage, handle.result()[1])
-                self._refine_typical_s[stage] = typical + 0.2 * (handle.result()[1] - typical)
-                self._count_refinement(outcome, compute)
+                    self._metrics.frt_compute_seconds.labels("refined").observe(seconds)
+                refinements.took(stage, seconds)
+                refinements.count(outcome, stage)
                 follow = outcome == "landed"
             elif not discard and not isinstance(error, CancelledError):
-                self._count_refinement("failed", compute)
-                self._remember(self._refine_failed, key)
+                refinements.count("failed", stage)
+                refinements.remember_failed(key)
         if error is not None and not isinstance(error, CancelledError | BrokenExecutor):
             log.error(
                 "FRT refinement failed",
                 extra={"agent_id": key.agent_id, "frt_version": key.version, "error": repr(error)},
             )
         if follow:
-            self._queue_refinement(key, compute, handle.result()[0], later=True)
+            self._queue_refinement(key, refinement.compute, handle.result()[0], later=True)
         self._dispatch()
 
     def _finished(self, key: FRTKey, handle: Future[Any]) -> None:
@@ -568,9 +488,8 @@ class FRTScheduler:
                 "without refinements"
             )
             self._executor = ThreadPoolExecutor(self._workers, thread_name_prefix="frt-exact")
-            self.refinement = None  # on threads they would hold the event loop's GIL
-            self._refine_queue.clear()
-            self._refine_later.clear()
+            self._refinements.rule = None  # on threads they would hold the event loop's GIL
+            self._refinements.clear()
             self._pending[key] = job
             self._running.add(key)
             self._started[key] = time.perf_counter()

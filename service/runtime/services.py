@@ -36,6 +36,7 @@ from service.runtime.exact_worker import ExactTask, start_pool, warm_up_task
 from service.runtime.memory import freeze_start_up_objects, keep_freed_memory
 from service.runtime.metrics import Metrics
 from service.runtime.priority import ChecksFirst
+from service.runtime.refiner import Refinement
 from service.runtime.scheduler import FRTKey, FRTScheduler, LRUCache, timed
 from service.runtime.settings import Settings
 from service.runtime.store import AgentState, AgentStore, make_store
@@ -319,10 +320,11 @@ class Services:
         return float(engine.horizon) if engine is not None else self.settings.horizon_s
 
 
-def refine_by_notch_cut(compute: Callable[[], Any], result: Any) -> ExactTask | None:
+def refine_by_notch_cut(compute: Callable[[], Any], result: Any) -> Refinement | None:
     """The scheduler's refinement (``FRT_FRT_NOTCH_CUT``): an exact set that could have a notch is
     cut by each stage of the notch cut in turn once it is ready (``ExactTask.refinement``)."""
-    return compute.refinement(result) if isinstance(compute, ExactTask) else None
+    task = compute.refinement(result) if isinstance(compute, ExactTask) else None
+    return None if task is None else Refinement(task, stage=task.stage)
 
 
 def services_of(conn: HTTPConnection) -> Services:

@@ -30,7 +30,9 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def wait_ready(url: str, timeout_s: float = 30.0, proc: subprocess.Popen | None = None) -> None:
+def wait_ready(url: str, timeout_s: float = 120.0, proc: subprocess.Popen | None = None) -> None:
+    """Until the server at ``url`` is ready: patient, since on a 2-core machine busy with other
+    work a server loading the shipped model and warming its workers takes tens of seconds."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         if proc is not None and proc.poll() is not None:

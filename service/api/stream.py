@@ -9,6 +9,9 @@ body, plus ``agent_id`` where the HTTP path has one:
 - ``frt``: ``agent_id`` + ``slices``, ``include``, ``tube``, ``collision_radius`` (the agent's
   contours); without ``agent_id``, the stateless ``POST /v1/frt`` body;
 - ``get_agent``, ``delete_agent``: ``agent_id``;
+- ``list_agents``: no fields; ``{"agents": [...], "total": n, "truncated": bool}``, each agent as
+  ``get_agent`` answers it, sorted by id, at most ``max_agents_per_check`` of them (what the
+  viewer, ``GET /viewer``, polls);
 - ``ping``: answers ``{"pong": true}``.
 
 Answer: ``{"id": ..., "ok": true, "result": ...}`` or ``{"id": ..., "ok": false, "error": {"status":
@@ -26,7 +29,7 @@ from typing import Any
 
 from pydantic import BaseModel, TypeAdapter, ValidationError
 
-from service.api.errors import APIError, validation_payload
+from service.api.errors import AgentNotFoundError, APIError, validation_payload
 from service.api.schemas import (
     AgentId,
     CollisionCheckRequest,
@@ -110,6 +113,19 @@ async def _delete_agent(services: Services, msg: dict[str, Any], arrival: float)
     return await agents.delete_agent(services, agent_id)
 
 
+async def _list_agents(services: Services, msg: dict[str, Any], arrival: float) -> dict[str, Any]:
+    _no_other_fields(msg)
+    ids = sorted(await services.store.ids())
+    limit = services.settings.max_agents_per_check
+    listed = []
+    for agent_id in ids[:limit]:
+        try:
+            listed.append((await agents.get_agent(services, agent_id)).model_dump(mode="json"))
+        except AgentNotFoundError:  # deleted or expired since the ids were read
+            continue
+    return {"agents": listed, "total": len(ids), "truncated": len(ids) > limit}
+
+
 async def _ping(services: Services, msg: dict[str, Any], arrival: float) -> dict[str, Any]:
     _no_other_fields(msg)
     return {"pong": True}
@@ -121,6 +137,7 @@ OPS: dict[str, Handler] = {
     "frt": _frt,
     "get_agent": _get_agent,
     "delete_agent": _delete_agent,
+    "list_agents": _list_agents,
     "ping": _ping,
 }
 

@@ -53,7 +53,7 @@ const state = {
   selected: null,
   horizon: 3.0,
   slices: [],
-  options: { colour: "class", showTube: true, showSlice: true, sliceIndex: 2 },
+  options: { colour: "class", showTube: true, showSlice: true, showGrid: true, sliceIndex: 2 },
   view: { cx: 0, cy: 0, s: 4, follow: true }, // fitted view: world centre, pixels per metre
   zoom: d3.zoomIdentity,
   width: 0,
@@ -391,7 +391,7 @@ function draw() {
   ctx.fillStyle = STYLE.background;
   ctx.fillRect(0, 0, state.width, state.height);
   ctx.font = "12px system-ui, sans-serif";
-  drawGrid(dpr);
+  if (state.options.showGrid) drawGrid(dpr);
   const agents = [...state.agents.values()];
   for (const agent of agents) drawSets(agent, dpr);
   for (const agent of agents) {

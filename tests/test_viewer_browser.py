@@ -17,7 +17,6 @@ from __future__ import annotations
 import importlib.util
 import io
 import json
-import math
 import sys
 import threading
 import time
@@ -190,9 +189,14 @@ def test_the_set_is_drawn_where_the_api_says_and_follows_new_observations(
         t = slices[i]
         slice_k = shape(next(s for s in sets["slices"] if abs(s["t"] - t) < 1e-9)["K"])
         slice_c = shape(next(s for s in sets["slices"] if abs(s["t"] - t) < 1e-9)["C"])
-        page.evaluate(f"window.frtViewer.setOptions({{showTube: false, showSlice: true, sliceIndex: {i}}})")
+        show = f"{{showTube: false, showSlice: true, sliceIndex: {i}}}"
+        page.evaluate(f"window.frtViewer.setOptions({show})")
+        page.wait_for(
+            f"window.frtViewer.snapshot().agents[{json.dumps(agent)}].contoursSlice === {t}"
+        )
         q = inside_point(mapping_of(slice_k), (x0, y0), margin_m=0.4)
-        outside_slice = inside_point(mapping_of(tube_k.difference(slice_c.buffer(1.0))), (x0, y0), 0.3)
+        rest = mapping_of(tube_k.difference(slice_c.buffer(1.0)))
+        outside_slice = inside_point(rest, (x0, y0), margin_m=0.3)
         next_frame(page)
         image = pixels(page)
         assert_colour(image, view.pixel(q.x, q.y), over(background, colour, style["sliceK"]))
@@ -202,9 +206,7 @@ def test_the_set_is_drawn_where_the_api_says_and_follows_new_observations(
         page.evaluate("window.frtViewer.setOptions({showTube: true, showSlice: false})")
         assert snapshot(page)["plot"]["points"] == 1
         x1, y1 = x0 + 30.0, y0 + 5.0
-        second = observe(
-            http, agent, observation(1.5, x=x1, y=y1, speed=5.0, action=(1.5, -8.0))
-        )
+        second = observe(http, agent, observation(1.5, x=x1, y=y1, speed=5.0, action=(1.5, -8.0)))
         assert second["frt_version"] > first["frt_version"] and second["action_scored"]
         wait_drawn(page, agent, second["frt_version"])
         moved = contours(http, agent, slices)
@@ -245,7 +247,9 @@ def feed(ws_url: str, stop: threading.Event, rounds: list[int]) -> None:
                 y = 15.0 * (i // 10)
                 action = None if k == 0 else (0.0, 0.0)
                 body = observation(t, x=x, y=y, speed=5.0, action=action)
-                ws.send(json.dumps({"id": i, "op": "observe", "agent_id": f"fleet-{i:02d}", **body}))
+                ws.send(
+                    json.dumps({"id": i, "op": "observe", "agent_id": f"fleet-{i:02d}", **body})
+                )
             for _ in range(AGENTS):
                 answer = json.loads(ws.recv(timeout=30))
                 assert answer["ok"], answer
@@ -284,13 +288,14 @@ def test_fifty_agents_at_two_hertz_keep_up(page: chromium.Page, server: LiveServ
             f" max {stats['drawMsMax']:.2f} ms over {stats['drawSamples']} frames;"
             f" frame interval p50 {stats['frameIntervalMsP50']:.1f} ms;"
             f" poll p50 {stats['pollMsP50']:.1f} ms; contour fetches {stats['fetches']};"
-            f" versions behind at most {stats['maxLag']} in all"
-            f" ({stats['maxLag'] / AGENTS:.2f} per agent), mid-run {during['stats']['lag']}"
+            f" versions not yet drawn at most {stats['maxLag']} in all"
+            f" ({stats['maxLag'] / AGENTS:.2f} per agent, mid-run {during['stats']['lag']}),"
+            f" the stalest agent at most {stats['maxWorstAgentLag']} behind"
         )
         assert len(after["agents"]) >= AGENTS
         assert all(b <= 0 for b in behind.values()), behind
         assert stats["fetchErrors"] == 0
-        # Generous: on average never more than 3 versions (1.5 s at 2 Hz) behind per agent.
-        assert stats["maxLag"] <= 3 * AGENTS, stats
+        # Generous: no agent's drawn set ever more than 12 versions (6 s at 2 Hz) old.
+        assert stats["maxWorstAgentLag"] <= 12, stats
         for agent in fleet:
             http.delete(f"/v1/agents/{agent}")

@@ -1,8 +1,9 @@
 // The operator's live view (GET /viewer): agents, their sets and their confidence, in the world frame.
 //
 // Data: the agents come from polling the `list_agents` op on WS /v1/stream (one message for all of
-// them); an agent's contours (GET /v1/agents/{id}/frt: tube and time slices of K and C) are fetched
-// only when its FRT version changes, at most one request per agent and MAX_FETCHES in all at once.
+// them); an agent's contours (GET /v1/agents/{id}/frt: the tube of K and C and the slider's time
+// slice, which costs a fifth of all the slices at once) are fetched only when its FRT version or
+// the slider changes, at most one request per agent and MAX_FETCHES in all at once.
 // Drawing: d3.geoPath turns each contour into a Path2D once per version, in world coordinates;
 // a frame sets the canvas transform (d3.zoom's pan and zoom on top of the fitted view) and fills the
 // cached paths, on requestAnimationFrame, only when something changed. uPlot draws the selected
@@ -64,6 +65,7 @@ const state = {
   stats: {
     polls: 0, pollMs: [], fetches: 0, fetchErrors: 0, inFlight: 0,
     frames: 0, drawMs: [], frameIntervalMs: [], lastFrameAt: null, maxLag: 0, lag: 0,
+    worstAgentLag: 0, maxWorstAgentLag: 0,
   },
 };
 
@@ -135,8 +137,10 @@ function upsertAgent(info, now) {
   let agent = state.agents.get(info.agent_id);
   if (!agent) {
     agent = {
-      id: info.agent_id, info, cls: info.agent_class || "car", version: 0, versionSeenAt: now,
-      contours: null, paths: null, contoursVersion: 0, drawnVersion: 0, conservative: false,
+      id: info.agent_id, info, cls: info.agent_class || "car", version: 0, behindSince: now,
+      contours: null, paths: null, contoursVersion: 0, contoursSlice: null, contoursAt: 0,
+      drawnVersion: 0,
+      conservative: false,
       fetching: false, history: [],
     };
     state.agents.set(info.agent_id, agent);
@@ -144,8 +148,9 @@ function upsertAgent(info, now) {
   agent.info = info;
   agent.cls = info.agent_class || agent.cls;
   if (info.frt_version !== agent.version) {
+    // Since when the drawn set has been behind: a new version every poll must not reset it.
+    if (agent.version === agent.contoursVersion) agent.behindSince = now;
     agent.version = info.frt_version;
-    agent.versionSeenAt = now;
   }
   const last = agent.history[agent.history.length - 1];
   if (!last || info.timestamp > last.t) {
@@ -170,24 +175,31 @@ function onAgents(result) {
   pumpFetches();
 }
 
+const sliceTime = () => state.slices[state.options.sliceIndex];
+
 function wanted(agent, now) {
-  return !agent.fetching && agent.version !== agent.contoursVersion &&
-    (agent.info.frt_ready || now - agent.versionSeenAt >= WAIT_READY_MS);
+  if (agent.fetching) return false;
+  if (agent.version === agent.contoursVersion) return agent.contoursSlice !== sliceTime();
+  return agent.info.frt_ready || now - agent.behindSince >= WAIT_READY_MS;
 }
 
+// When the server answers fewer contour requests than versions arrive, the agents whose drawn
+// sets are oldest go first (the selected one before all), so none of them starves.
 function pumpFetches() {
+  if (state.stats.inFlight >= MAX_FETCHES) return;
   const now = performance.now();
-  for (const agent of state.agents.values()) {
-    if (state.stats.inFlight >= MAX_FETCHES) return;
-    if (wanted(agent, now)) fetchContours(agent);
-  }
+  const due = [...state.agents.values()].filter((agent) => wanted(agent, now));
+  const rank = (agent) => (agent.id === state.selected ? -1 : agent.contoursAt);
+  due.sort((a, b) => rank(a) - rank(b));
+  for (const agent of due.slice(0, MAX_FETCHES - state.stats.inFlight)) fetchContours(agent);
 }
 
 async function fetchContours(agent) {
   agent.fetching = true;
   state.stats.inFlight += 1;
-  const slices = state.slices.map((t) => +t.toFixed(3)).join(",");
-  const url = `${httpBase}/v1/agents/${encodeURIComponent(agent.id)}/frt?include=K,C&slices=${slices}`;
+  const t = sliceTime();
+  const query = t === undefined ? "" : `&slices=${+t.toFixed(3)}`;
+  const url = `${httpBase}/v1/agents/${encodeURIComponent(agent.id)}/frt?include=K,C${query}`;
   try {
     const response = await fetch(url, { headers: authHeaders });
     if (response.ok) {
@@ -196,6 +208,9 @@ async function fetchContours(agent) {
         agent.contours = body;
         agent.paths = pathsOf(body);
         agent.contoursVersion = body.frt_version;
+        agent.contoursSlice = t;
+        agent.contoursAt = performance.now();
+        agent.behindSince = agent.contoursAt;
         agent.conservative = body.conservative;
         state.dirty = true;
       }
@@ -268,11 +283,19 @@ function connect() {
   };
 }
 
+// Versions known but not drawn: in all, and of the stalest agent.
 function measureLag() {
   let lag = 0;
-  for (const a of state.agents.values()) lag += Math.max(0, a.version - a.drawnVersion);
+  let worst = 0;
+  for (const a of state.agents.values()) {
+    const behind = Math.max(0, a.version - a.drawnVersion);
+    lag += behind;
+    worst = Math.max(worst, behind);
+  }
   state.stats.lag = lag;
   state.stats.maxLag = Math.max(state.stats.maxLag, lag);
+  state.stats.worstAgentLag = worst;
+  state.stats.maxWorstAgentLag = Math.max(state.stats.maxWorstAgentLag, worst);
 }
 
 function push(list, value, cap = FRAME_SAMPLES) {
@@ -344,7 +367,7 @@ function drawSets(agent, dpr) {
     fill(paths.tube.K, STYLE.tubeK);
     stroke(paths.tube.C, agent.id === state.selected ? 2 : 1, agent.conservative);
   }
-  const slice = paths.slices[state.options.sliceIndex];
+  const slice = paths.slices.find((s) => Math.abs(s.t - sliceTime()) < 1e-6);
   if (state.options.showSlice && slice) {
     fill(slice.C, STYLE.sliceC);
     fill(slice.K, STYLE.sliceK);
@@ -556,6 +579,7 @@ function setOptions(options) {
   showSliceLabel();
   showLegend();
   state.dirty = true;
+  pumpFetches(); // a new slice time: every agent's slice is fetched again
 }
 
 el("slice").addEventListener("input", (e) => setOptions({ sliceIndex: +e.target.value - 1 }));
@@ -586,6 +610,7 @@ const api = {
     for (const a of state.agents.values()) {
       agents[a.id] = {
         version: a.version, contoursVersion: a.contoursVersion, drawnVersion: a.drawnVersion,
+        contoursSlice: a.contoursSlice ?? null,
         conservative: a.conservative, cls: a.cls, colour: d3.color(agentColour(a)).formatHex(),
         state: a.info.state, beta: a.info.beta, history: a.history.length,
         timestamp: a.info.timestamp,
@@ -600,7 +625,8 @@ const api = {
       plot: plot ? { points: plot.data[0].length, beta: plot.data[1].slice(-1)[0] ?? null } : null,
       stats: {
         polls: s.polls, fetches: s.fetches, fetchErrors: s.fetchErrors, frames: s.frames,
-        lag: s.lag, maxLag: s.maxLag,
+        lag: s.lag, maxLag: s.maxLag, worstAgentLag: s.worstAgentLag,
+        maxWorstAgentLag: s.maxWorstAgentLag,
         drawMsP50: percentile(s.drawMs, 0.5), drawMsP95: percentile(s.drawMs, 0.95),
         drawMsMax: s.drawMs.length ? Math.max(...s.drawMs) : null,
         frameIntervalMsP50: percentile(s.frameIntervalMs, 0.5),
@@ -610,7 +636,9 @@ const api = {
     };
   },
   resetStats() {
-    Object.assign(state.stats, { drawMs: [], frameIntervalMs: [], pollMs: [], maxLag: 0 });
+    Object.assign(state.stats, {
+      drawMs: [], frameIntervalMs: [], pollMs: [], maxLag: 0, maxWorstAgentLag: 0,
+    });
   },
   setView(cx, cy, s) {
     state.view = { cx, cy, s, follow: false };

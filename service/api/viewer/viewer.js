@@ -455,6 +455,7 @@ function makePlot() {
     ],
     axes: [{ size: 30 }, { size: 35 }],
     cursor: { drag: { x: false, y: false } },
+    legend: { live: false },
   };
   plot = new uPlot(opts, [[], [], []], el("beta-plot"));
 }
@@ -547,6 +548,7 @@ function showSliceLabel() {
 
 function select(id) {
   state.selected = id;
+  document.querySelector("#selected .hint").hidden = Boolean(id);
   state.plotDirty = true;
   state.dirty = true;
   if (!id) {

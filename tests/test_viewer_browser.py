@@ -27,7 +27,7 @@ from types import ModuleType
 import httpx
 import pytest
 from PIL import Image
-from shapely.geometry import Point, shape
+from shapely.geometry import Point, mapping, shape
 from websockets.sync.client import connect
 
 from tests.conftest import LiveServer
@@ -225,8 +225,6 @@ def test_the_set_is_drawn_where_the_api_says_and_follows_new_observations(
 
 
 def mapping_of(geometry: object) -> dict:
-    from shapely.geometry import mapping
-
     return dict(mapping(geometry))
 
 

@@ -3,6 +3,8 @@ turns it off, and the stream's ``list_agents`` op the page polls."""
 
 from __future__ import annotations
 
+import fnmatch
+import tomllib
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -108,3 +110,14 @@ def test_setting_reads_frt_viewer_from_the_environment(monkeypatch: pytest.Monke
     assert Settings().viewer is False
     monkeypatch.setenv("FRT_VIEWER", "1")
     assert Settings().viewer is True
+
+
+def test_the_package_ships_every_viewer_file() -> None:
+    """pip install . (the Docker image's build) copies only what package-data names."""
+    pyproject = tomllib.loads((VIEWER_DIR.parents[2] / "pyproject.toml").read_text())
+    patterns = pyproject["tool"]["setuptools"]["package-data"]["service.api"]
+    files = [p.relative_to(VIEWER_DIR.parent).as_posix() for p in VIEWER_DIR.rglob("*")]
+    files = [f for f in files if (VIEWER_DIR.parent / f).is_file() and "__pycache__" not in f]
+    assert "viewer/index.html" in files and "viewer/vendor/LICENSE.uplot" in files
+    unshipped = [f for f in files if not any(fnmatch.fnmatch(f, p) for p in patterns)]
+    assert unshipped == []

@@ -80,6 +80,21 @@ def test_list_agents_op_answers_every_agent_as_get_agent_does(open_client: TestC
             assert row[key] == one[key], key
         assert row["state"]["x"] == 3.0
         assert call({"id": 4, "op": "list_agents", "agent_id": "x"})["error"]["field"] == "agent_id"
+        # A planner's check, over the stream and over HTTP, is listed with its answer, newest first.
+        path = [{"t": 1.1, "x": 3.0, "y": 0.0}, {"t": 1.2, "x": 40.0, "y": 30.0}]
+        one = call({"id": 7, "op": "collision_check", "agent_id": "view-a", "trajectory": path})
+        assert one["ok"] and one["result"]["collision"] is True  # it starts on the agent
+        far = [{"t": 1.1, "x": 90.0, "y": 90.0}]
+        many = open_client.post("/v1/collision-check", json={"trajectory": far}).json()
+        assert many["collision"] is False
+        checks = call({"id": 8, "op": "list_agents"})["result"]["checks"]
+        assert [c["trajectory"] for c in checks[:2]] == [
+            [[1.1, 90.0, 90.0]],
+            [[1.1, 3.0, 0.0], [1.2, 40.0, 30.0]],
+        ]
+        assert checks[1]["collision"] is True and checks[0]["collision"] is False
+        assert checks[1]["agents"]["view-a"]["first_collision_index"] == 0
+        assert set(checks[0]["agents"]) == {"view-a", "view-b"}
         for agent in ("view-a", "view-b"):
             call({"id": 5, "op": "delete_agent", "agent_id": agent})
         assert call({"id": 6, "op": "list_agents"})["result"]["total"] == before["total"]

@@ -221,6 +221,15 @@ def test_the_set_is_drawn_where_the_api_says_and_follows_new_observations(
         )
         assert plot["beta"] == pytest.approx(second["beta"], abs=1e-12)
         assert second["beta"] < first["beta"]  # the wild action lowered it: the plot shows that
+
+        # A planner's check through the agent is listed to the page with its answer.
+        path = [{"t": 1.6 + 0.05 * k, "x": x1 + 5.0, "y": y1 + 20.0 - k} for k in range(41)]
+        r = http.post(f"/v1/agents/{agent}/collision-check", json={"trajectory": path})
+        assert r.status_code == 200 and r.json()["collision"] is True
+        checks = page.wait_for(
+            "(s => s.checks.length > 0 && s.checks)(window.frtViewer.snapshot())", timeout_s=5.0
+        )
+        assert checks[0]["points"] == 41 and checks[0]["collision"] is True
         http.delete(f"/v1/agents/{agent}")
 
 

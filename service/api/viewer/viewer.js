@@ -6,7 +6,8 @@
 // the slider changes, at most one request per agent and MAX_FETCHES in all at once.
 // Drawing: d3.geoPath turns each contour into a Path2D once per version, in world coordinates;
 // a frame sets the canvas transform (d3.zoom's pan and zoom on top of the fitted view) and fills the
-// cached paths, on requestAnimationFrame, only when something changed. uPlot draws the selected
+// cached paths, on requestAnimationFrame, only when something changed; planners' trajectories
+// checked in the last seconds (also in list_agents' answer) go on top. uPlot draws the selected
 // agent's beta and belief over time. The page's state is window.frtViewer (see `api` below).
 
 const d3 = window.d3;
@@ -30,6 +31,8 @@ const STYLE = {
   sliceC: 0.0,
   sliceK: 0.55,
   outline: 0.8,
+  clearPath: "#1a9850", // a planner's trajectory clear of every agent's C
+  hitPath: "#d73027", // ... and from its first point inside one
   markerPx: 9,
 };
 
@@ -51,10 +54,14 @@ const el = (id) => document.getElementById(id);
 
 const state = {
   agents: new Map(), // id -> agent record (see upsertAgent)
+  checks: [], // planners' trajectories checked in the last seconds, newest first
   selected: null,
   horizon: 3.0,
   slices: [],
-  options: { colour: "class", showTube: true, showSlice: true, showGrid: true, sliceIndex: 2 },
+  options: {
+    colour: "class", showTube: true, showSlice: true, showGrid: true, showChecks: true,
+    sliceIndex: 2,
+  },
   view: { cx: 0, cy: 0, s: 4, follow: true }, // fitted view: world centre, pixels per metre
   zoom: d3.zoomIdentity,
   width: 0,
@@ -171,6 +178,7 @@ function onAgents(result) {
   if (state.selected && !state.agents.has(state.selected)) select(null);
   if (state.view.follow) fitView();
   state.truncated = result.truncated ? result.total : 0;
+  state.checks = result.checks || [];
   state.dirty = true;
   pumpFetches();
 }
@@ -376,6 +384,41 @@ function drawSets(agent, dpr) {
   ctx.setLineDash([]);
 }
 
+// A checked trajectory: green while clear of every agent's C, red from its first collision on;
+// dashed where an answer was conservative; fading with age.
+function drawCheck(check, dpr) {
+  const points = check.trajectory.map(([, x, y]) => toScreen(x, y));
+  if (!points.length) return;
+  const hits = Object.values(check.agents)
+    .map((a) => a.first_collision_index)
+    .filter((i) => i !== null && i !== undefined);
+  const n = check.trajectory.length;
+  const first = hits.length ? Math.min(...hits) : n;
+  const alpha = Math.max(0.25, 1 - check.age_s / 2);
+  ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
+  ctx.lineWidth = 2.5;
+  ctx.setLineDash(check.conservative ? [5, 3] : []);
+  const part = (from, to, colour) => { // points from..to, both included
+    if (to <= from) return;
+    ctx.beginPath();
+    ctx.moveTo(...points[from]);
+    for (let i = from + 1; i <= to; i++) ctx.lineTo(...points[i]);
+    ctx.strokeStyle = withAlpha(colour, alpha);
+    ctx.stroke();
+  };
+  part(0, Math.min(first, n - 1), STYLE.clearPath);
+  if (first < n) part(first, n - 1, STYLE.hitPath);
+  ctx.setLineDash([]);
+  for (const [i, [sx, sy]] of points.entries()) {
+    if (i === 0 || i === first) {
+      ctx.beginPath();
+      ctx.arc(sx, sy, 3.5, 0, 2 * Math.PI);
+      ctx.fillStyle = withAlpha(i >= first ? STYLE.hitPath : STYLE.clearPath, alpha);
+      ctx.fill();
+    }
+  }
+}
+
 function drawMarker(agent, dpr) {
   const { x, y, heading } = agent.info.state;
   const [sx, sy] = toScreen(x, y);
@@ -417,6 +460,9 @@ function draw() {
   if (state.options.showGrid) drawGrid(dpr);
   const agents = [...state.agents.values()];
   for (const agent of agents) drawSets(agent, dpr);
+  if (state.options.showChecks) {
+    for (const check of [...state.checks].reverse()) drawCheck(check, dpr); // newest on top
+  }
   for (const agent of agents) {
     drawMarker(agent, dpr);
     agent.drawnVersion = agent.contoursVersion;
@@ -537,7 +583,10 @@ function showLegend() {
       sw.style.background = colour;
       return [sw, document.createTextNode(label)];
     }),
-    document.createTextNode(" · light: C = K ⊕ R_col, mid: K, dark: slice K, dashed/≈: conservative"),
+    document.createTextNode(
+      " · light: C = K ⊕ R_col, mid: K, dark: slice K, dashed/≈: conservative" +
+      " · planner paths: green clear, red in C",
+    ),
   );
 }
 
@@ -577,6 +626,7 @@ function setOptions(options) {
   el("colour").value = state.options.colour;
   el("show-tube").checked = state.options.showTube;
   el("show-slice").checked = state.options.showSlice;
+  el("show-checks").checked = state.options.showChecks;
   el("slice").value = String(state.options.sliceIndex + 1);
   showSliceLabel();
   showLegend();
@@ -588,6 +638,7 @@ el("slice").addEventListener("input", (e) => setOptions({ sliceIndex: +e.target.
 el("colour").addEventListener("change", (e) => setOptions({ colour: e.target.value }));
 el("show-tube").addEventListener("change", (e) => setOptions({ showTube: e.target.checked }));
 el("show-slice").addEventListener("change", (e) => setOptions({ showSlice: e.target.checked }));
+el("show-checks").addEventListener("change", (e) => setOptions({ showChecks: e.target.checked }));
 el("fit").addEventListener("click", fitView);
 canvas.addEventListener("click", pick);
 d3.select(canvas).call(
@@ -621,6 +672,10 @@ const api = {
     const s = state.stats;
     return {
       connected: state.connected, error: state.error, agents, selected: state.selected,
+      checks: state.checks.map((c) => ({
+        points: c.trajectory.length, collision: c.collision, conservative: c.conservative,
+        age_s: c.age_s,
+      })),
       slices: state.slices, options: { ...state.options }, view: { ...state.view },
       zoom: { k: state.zoom.k, x: state.zoom.x, y: state.zoom.y },
       size: [state.width, state.height],

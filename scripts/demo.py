@@ -4,7 +4,9 @@ Starts ``uvicorn service.api.app:app`` (the shipped model unless ``--model``), t
 Argoverse 2 scenario in ``data/av2/`` (or ``../shared/data/av2/``) through the client SDK at real
 time, looping: every vehicle track is observed every 0.5 s with the constant velocity and turn
 rate predictor of ``experiments/av2.py`` (its covariance fitted on all tracks), the action taken
-over the last 0.5 s scored against it. Prints the viewer's URL; Ctrl-C stops the replay and the
+over the last 0.5 s scored against it. The recording car's own track (``AV``) is the planner: at
+each tick its recorded next 3 s are checked against every agent (``time_indexed``), which the
+viewer draws. Prints the viewer's URL; Ctrl-C stops the replay and the
 server. ``--screenshot PATH`` instead runs the replay until the sets are drawn, saves the page as
 seen by headless Chromium (``scripts/headless_chromium.py``) and stops.
 
@@ -52,6 +54,8 @@ from reach.dynamics import wrap_angle  # noqa: E402
 DATA_DIRS = (ROOT / "data" / "av2", ROOT.parent / "shared" / "data" / "av2")
 DEFAULT_MODEL = ROOT / "models" / "frt_unicycle.onnx"
 STEP_S = OBS_EVERY * SAMPLE_DT_S  # one observation per track every 0.5 s
+PLANNER_TRACK = "AV"  # the recording car: its own future is the planner's trajectory
+PLAN_S = 3.0
 #: Tracks shorter than this are left out (a first observation needs 0.5 s of history).
 MIN_TRACK_S = 1.0
 
@@ -97,6 +101,8 @@ class Replay:
 
     def __init__(self, client: FRTClient, tracks: list[Track], v_max: float) -> None:
         self.client = client
+        self.planner = next((t for t in tracks if t.track_id == PLANNER_TRACK), None)
+        tracks = [t for t in tracks if t.track_id != PLANNER_TRACK]
         self.sigma = fit_sigma([t for t in tracks if t.observation_indices()])
         self.tracks = {f"av2-{t.track_id}": t for t in tracks}
         self.ticks = schedule(tracks, v_max)
@@ -104,6 +110,7 @@ class Replay:
         self.loop_s = (self.last_tick + 2) * STEP_S  # the clock keeps increasing across loops
         self.stop = threading.Event()
         self.observed = 0
+        self.checks = 0
         self.errors = 0
         self.loops = 0
 
@@ -122,6 +129,23 @@ class Replay:
             self.errors += 1
             print(f"observation of {obs.agent_id} failed: {exc}", file=sys.stderr)
 
+    def _check_plan(self, tick: int, clock: float) -> None:
+        """The planner's recorded next 3 s from this tick, against every agent."""
+        track = self.planner
+        if track is None:
+            return
+        future = (track.t >= tick * STEP_S - 1e-9) & (track.t <= tick * STEP_S + PLAN_S + 1e-9)
+        if future.sum() < 2:
+            return
+        path = [(clock + t, x, y) for t, x, y in
+                zip(track.t[future], track.x[future], track.y[future], strict=True)]  # fmt: skip
+        try:
+            self.client.collision_check_many(path, mode="time_indexed")
+            self.checks += 1
+        except FRTError as exc:
+            self.errors += 1
+            print(f"the planner's check failed: {exc}", file=sys.stderr)
+
     def run(self) -> None:
         start = time.monotonic()
         previous: set[str] = set()
@@ -134,6 +158,8 @@ class Replay:
                 now = self.ticks.get(tick, [])
                 for obs in now:
                     self._observe(obs, clock, previous)
+                if now:
+                    self._check_plan(tick, clock)
                 current = {o.agent_id for o in now}
                 for gone in previous - current:  # the track ended: its sets go with it
                     with contextlib.suppress(FRTError):
@@ -243,7 +269,8 @@ def main(argv: list[str] | None = None) -> int:
         worker = threading.Thread(target=replay.run, name="replay", daemon=True)
         worker.start()
         print(f"viewer: {url}/viewer", flush=True)
-        print(f"replaying {len(tracks)} vehicle tracks, {replay.loop_s:.1f} s a loop; "
+        print(f"replaying {len(replay.tracks)} vehicle tracks and the recording car's plan, "
+              f"{replay.loop_s:.1f} s a loop; "
               f"{ATTRIBUTION}", flush=True)  # fmt: skip
         try:
             if args.screenshot is not None:
@@ -255,7 +282,8 @@ def main(argv: list[str] | None = None) -> int:
                 while worker.is_alive():
                     worker.join(timeout=5.0)
                     print(f"\rloop {replay.loops + 1}, {replay.observed} observations, "
-                          f"{replay.errors} errors", end="", flush=True)  # fmt: skip
+                          f"{replay.checks} planner checks, {replay.errors} errors", end="",
+                          flush=True)  # fmt: skip
         except KeyboardInterrupt:
             print("\nstopping", flush=True)
         finally:

@@ -76,6 +76,8 @@ def test_replay_feeds_the_service_and_forgets_its_agents(
         assert not worker.is_alive() and replay.errors == 0
         expected = sum(len(replay.ticks.get(k, [])) for k in range(3))  # surely done
         assert expected > 0 and replay.observed >= expected
+        assert replay.planner is not None and replay.checks >= 1  # the recording car's plan
+        assert f"av2-{demo.PLANNER_TRACK}" not in replay.tracks
         with httpx.Client(base_url=server.url) as http:
             first = replay.ticks[min(replay.ticks)][0].agent_id
             assert http.get(f"/v1/agents/{first}").json()["frt_version"] >= 1

@@ -13,7 +13,7 @@ DURATION ?= 60
 MODEL ?= models/frt_unicycle.onnx
 FIND_LINKS := $(if $(wildcard /opt/wheels),--find-links /opt/wheels,)
 
-.PHONY: venv serve test lint format train train-smoke evaluate evaluate-full compare-authors network-diagnostics bench bench-sustained load scale-test scenarios plots clean
+.PHONY: venv serve demo viewer-screenshot test lint format train train-smoke evaluate evaluate-full compare-authors network-diagnostics bench bench-sustained load scale-test scenarios plots clean
 
 $(RUNTIME): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -29,6 +29,15 @@ venv: $(STAMP)
 
 serve: $(RUNTIME)
 	FRT_MODEL_PATH=$(MODEL) $(BIN)/uvicorn service.api.app:app --host $(HOST) --port $(PORT)
+
+# The service on 127.0.0.1 and the Argoverse 2 scenario replayed into it at real time, looping;
+# open the printed viewer URL. Ctrl-C stops both.
+demo: $(STAMP)
+	$(BIN)/python scripts/demo.py --host $(HOST) --port $(PORT) --model $(MODEL)
+
+# docs/viewer.png: the viewer during the demo's replay, as headless Chromium shows it.
+viewer-screenshot: $(STAMP)
+	$(BIN)/python scripts/demo.py --port $(PORT) --model $(MODEL) --screenshot docs/viewer.png
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

@@ -12,7 +12,7 @@ from service.api.auth import BearerAuthMiddleware, bearer_scheme
 from service.api.errors import install_error_handlers
 from service.api.limits import openapi_with_limits
 from service.api.middleware import BodySizeLimitMiddleware, RequestContextMiddleware
-from service.api.routes import agents, collision, contours, health, model, stateless, stream
+from service.api.routes import agents, collision, contours, health, model, stateless, stream, viewer
 from service.api.routes.params import query_parameters_checked
 from service.runtime.logs import configure_logging
 from service.runtime.services import Services
@@ -62,6 +62,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     for router in (agents, collision, contours, stateless, model):
         app.include_router(router.router, dependencies=checked)
     app.include_router(stream.router)
+    if settings.viewer:
+        app.include_router(viewer.router)
     return app
 
 

@@ -9,6 +9,10 @@ body, plus ``agent_id`` where the HTTP path has one:
 - ``frt``: ``agent_id`` + ``slices``, ``include``, ``tube``, ``collision_radius`` (the agent's
   contours); without ``agent_id``, the stateless ``POST /v1/frt`` body;
 - ``get_agent``, ``delete_agent``: ``agent_id``;
+- ``list_agents``: no fields; ``{"agents": [...], "total": n, "truncated": bool, "checks": [...]}``,
+  each agent as ``get_agent`` answers it, sorted by id, at most ``max_agents_per_check`` of them,
+  and the trajectories checked in the last seconds (:mod:`service.api.recent_checks`); what the
+  viewer, ``GET /viewer``, polls;
 - ``ping``: answers ``{"pong": true}``.
 
 Answer: ``{"id": ..., "ok": true, "result": ...}`` or ``{"id": ..., "ok": false, "error": {"status":
@@ -26,7 +30,8 @@ from typing import Any
 
 from pydantic import BaseModel, TypeAdapter, ValidationError
 
-from service.api.errors import APIError, validation_payload
+from service.api import recent_checks
+from service.api.errors import AgentNotFoundError, APIError, validation_payload
 from service.api.schemas import (
     AgentId,
     CollisionCheckRequest,
@@ -70,10 +75,13 @@ async def _collision_check(services: Services, msg: dict[str, Any], arrival: flo
     agent_id = _pop_agent_id(msg, required=False)
     if agent_id is None:
         body = MultiCollisionCheckRequest.model_validate(msg)
-        return await checks.check_agents_at_once(services, body, arrival)
-    return await checks.check_agent(
-        services, agent_id, CollisionCheckRequest.model_validate(msg), arrival
-    )
+        many = await checks.check_agents_at_once(services, body, arrival)
+        recent_checks.of(services).record(body, many.results)
+        return many
+    request = CollisionCheckRequest.model_validate(msg)
+    answer = await checks.check_agent(services, agent_id, request, arrival)
+    recent_checks.of(services).record(request, [answer])
+    return answer
 
 
 async def _frt(services: Services, msg: dict[str, Any], arrival: float) -> BaseModel:
@@ -110,6 +118,20 @@ async def _delete_agent(services: Services, msg: dict[str, Any], arrival: float)
     return await agents.delete_agent(services, agent_id)
 
 
+async def _list_agents(services: Services, msg: dict[str, Any], arrival: float) -> dict[str, Any]:
+    _no_other_fields(msg)
+    ids = sorted(await services.store.ids())
+    limit = services.settings.max_agents_per_check
+    listed = []
+    for agent_id in ids[:limit]:
+        try:
+            listed.append((await agents.get_agent(services, agent_id)).model_dump(mode="json"))
+        except AgentNotFoundError:  # deleted or expired since the ids were read
+            continue
+    checked = recent_checks.of(services).recent()
+    return {"agents": listed, "total": len(ids), "truncated": len(ids) > limit, "checks": checked}
+
+
 async def _ping(services: Services, msg: dict[str, Any], arrival: float) -> dict[str, Any]:
     _no_other_fields(msg)
     return {"pong": True}
@@ -121,6 +143,7 @@ OPS: dict[str, Handler] = {
     "frt": _frt,
     "get_agent": _get_agent,
     "delete_agent": _delete_agent,
+    "list_agents": _list_agents,
     "ping": _ping,
 }
 

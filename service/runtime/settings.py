@@ -85,6 +85,8 @@ class Settings(BaseSettings):
     #: Whether sets are cut by the value network: "auto" evaluates it unless its model card's
     #: evaluation found that it cuts nothing inside the certified geometry; "on", "off" force it.
     network: Literal["auto", "on", "off"] = "auto"
+    #: Serve the operator's live page at ``GET /viewer`` (docs/viewer.md); off: 404.
+    viewer: bool = True
 
     # Logging: one JSON object per line on stderr.
     log_level: str = "INFO"

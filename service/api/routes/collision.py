@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Request
 
+from service.api import recent_checks
 from service.api.middleware import arrival_time
 from service.api.routes.model_json import ModelJSONResponse
 from service.api.routes.params import AgentIdPath, ServicesDep
@@ -25,6 +26,7 @@ async def check_agent(
     """Is the trajectory inside C = K ⊕ R_col? Answers within ``deadline_ms``, conservatively if
     the exact set is not ready."""
     answer = await checks.check_agent(services, agent_id, body, arrival_time(request.scope))
+    recent_checks.of(services).record(body, [answer])
     return ModelJSONResponse(answer)
 
 
@@ -34,4 +36,5 @@ async def check_many(
 ) -> ModelJSONResponse:
     """The same check against several agents (``agent_ids``) or all of them (``null``)."""
     answer = await checks.check_agents_at_once(services, body, arrival_time(request.scope))
+    recent_checks.of(services).record(body, answer.results)
     return ModelJSONResponse(answer)

@@ -1,0 +1,74 @@
+"""The trajectories planners had checked in the last seconds, with their answers, for the viewer.
+
+Collision checks (HTTP and the stream) append a reference to their request and answers, nothing
+copied on the check's path; ``list_agents`` (the viewer's poll) turns the recent ones into JSON.
+Per server process: behind a load balancer each replica knows the checks it answered.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from collections.abc import Sequence
+from typing import Any
+
+from service.api.schemas import CollisionCheckRequest, CollisionCheckResponse
+
+#: Checks kept, and how long one counts as the planner's current trajectory.
+KEEP = 64
+MAX_AGE_S = 2.0
+#: Points of a trajectory sent to the viewer (evenly thinned beyond this).
+MAX_POINTS = 100
+
+
+class RecentChecks:
+    def __init__(self, keep: int = KEEP, max_age_s: float = MAX_AGE_S) -> None:
+        self.max_age_s = max_age_s
+        self._checks: deque[
+            tuple[float, CollisionCheckRequest, Sequence[CollisionCheckResponse]]
+        ] = deque(maxlen=keep)
+
+    def record(
+        self, request: CollisionCheckRequest, answers: Sequence[CollisionCheckResponse]
+    ) -> None:
+        self._checks.append((time.monotonic(), request, answers))
+
+    def recent(self) -> list[dict[str, Any]]:
+        """The checks of the last ``max_age_s``, newest first."""
+        now = time.monotonic()
+        out = []
+        for at, request, answers in reversed(self._checks):
+            age = now - at
+            if age > self.max_age_s:
+                break
+            points = request.trajectory
+            step = max(1, -(-len(points) // MAX_POINTS))
+            out.append(
+                {
+                    "age_s": round(age, 3),
+                    "mode": request.mode,
+                    "trajectory": [[p.t, p.x, p.y] for p in points[::step]],
+                    "collision": any(a.collision for a in answers),
+                    "conservative": any(a.conservative for a in answers),
+                    "agents": {
+                        a.agent_id: {
+                            "collision": a.collision,
+                            "first_collision_index": a.first_collision_index,
+                            "conservative": a.conservative,
+                        }
+                        for a in answers
+                    },
+                }
+            )
+        return out
+
+
+_BY_SERVICES: dict[int, RecentChecks] = {}
+
+
+def of(services: object) -> RecentChecks:
+    """The recorder of one app's services (one per app: tests build several in one process)."""
+    recorder = _BY_SERVICES.get(id(services))
+    if recorder is None:
+        recorder = _BY_SERVICES[id(services)] = RecentChecks()
+    return recorder

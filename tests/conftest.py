@@ -30,7 +30,12 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
-def wait_ready(url: str, timeout_s: float = 120.0, proc: subprocess.Popen | None = None) -> None:
+READY_TIMEOUT_S = 120.0
+"""How long a test waits for a server to become ready: on a 2-core machine busy with other work,
+loading a model and warming the exact-set workers takes tens of seconds."""
+
+
+def wait_ready(url: str, timeout_s: float = READY_TIMEOUT_S, proc: subprocess.Popen | None = None) -> None:
     """Until the server at ``url`` is ready: patient, since on a 2-core machine busy with other
     work a server loading the shipped model and warming its workers takes tens of seconds."""
     deadline = time.monotonic() + timeout_s

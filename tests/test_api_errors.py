@@ -11,6 +11,7 @@ from fastapi.testclient import TestClient
 
 from service.api.app import create_app
 from service.runtime.settings import Settings
+from tests.conftest import READY_TIMEOUT_S
 from tests.fixtures.payloads import NARROW_BOUNDS, observation
 
 LIMITS = {"max_prediction_steps": 8, "max_trajectory_points": 5, "max_agents_per_check": 3}
@@ -19,7 +20,7 @@ LIMITS = {"max_prediction_steps": 8, "max_trajectory_points": 5, "max_agents_per
 def client_for(settings: Settings, ready: bool = True) -> Iterator[TestClient]:
     with TestClient(create_app(settings), raise_server_exceptions=False) as client:
         if ready:
-            deadline = time.monotonic() + 20
+            deadline = time.monotonic() + READY_TIMEOUT_S
             while client.get("/readyz").status_code != 200:
                 assert time.monotonic() < deadline, client.get("/readyz").json()
                 time.sleep(0.02)

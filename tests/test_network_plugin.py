@@ -21,6 +21,7 @@ from reach.frames import Pose
 from reach.value_field import ValueField
 from service.api.app import create_app
 from service.runtime.settings import Settings
+from tests.conftest import READY_TIMEOUT_S
 
 ROOT = Path(__file__).resolve().parent.parent
 MODEL = ROOT / "models" / "frt_unicycle.onnx"
@@ -79,7 +80,7 @@ def test_a_field_that_cuts_makes_the_set_smaller(analytic_model_path: Path) -> N
 def _active(network: str) -> dict:
     settings = Settings(model_path=MODEL, frt_executor="thread", network=network)
     with TestClient(create_app(settings)) as client:
-        deadline = time.monotonic() + 60
+        deadline = time.monotonic() + READY_TIMEOUT_S
         while client.get("/readyz").status_code != 200:
             assert time.monotonic() < deadline, client.get("/readyz").json()
             time.sleep(0.05)

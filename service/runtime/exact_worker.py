@@ -35,6 +35,7 @@ from reach.notch import NOTCH_STAGES
 from reach.polygons import compile_polygon_kernel
 from reach.sets import FRTSet
 from reach.speed_programme import compile_speed_programme
+from reach.union import exact_union
 from service.runtime.memory import freeze_start_up_objects, keep_freed_memory
 from service.runtime.pipe_pool import PipePool
 
@@ -61,6 +62,8 @@ class ExactTask:
         engine = self.engine if self.engine is not None else _engine
         if engine is None:
             raise RuntimeError("no engine in this process")
+        if np.ndim(self.bounds) == 2:  # a multi-modal set: one row of bounds per mode
+            return exact_union(engine, self.pose, self.v_start, self.bounds)
         return engine.exact(
             self.pose,
             self.v_start,

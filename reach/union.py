@@ -16,6 +16,7 @@ which has the same sign everywhere.
 from __future__ import annotations
 
 from collections.abc import Sequence
+
 import numpy as np
 import shapely
 from shapely.geometry.base import BaseGeometry

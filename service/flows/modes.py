@@ -39,7 +39,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from service.flows.bounds import PredictionError, validate_prediction
-from service.flows.confidence import LOG_PROB_FLOOR, Belief, log_likelihoods, prior_belief
+from service.flows.confidence import LOG_PROB_FLOOR, Belief, log_likelihoods
 
 #: Defaults of the per-agent ``mode_mass`` and ``mode_floor``.
 MODE_MASS = 0.99

@@ -6,6 +6,8 @@ normalising term kept), not with the module's log-space code path.
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 import shapely
@@ -108,7 +110,7 @@ def test_actions_following_the_minor_mode_raise_its_posterior() -> None:
     for _ in range(5):
         joint = joint.update(means[1], means, np.stack([cov, cov]), 0.05)
         posteriors.append(joint.mode_probs[1])
-    assert all(b > a for a, b in zip(posteriors, posteriors[1:], strict=False))
+    assert all(b > a for a, b in itertools.pairwise(posteriors))
     assert posteriors[-1] > 0.99
     assert joint.mode_betas[1] > 0.9  # the U-turn mode explains them: high confidence in it
 
@@ -201,7 +203,7 @@ def test_the_union_is_the_union_of_its_members() -> None:
         expected = shapely.union_all([m.tube(j) for m in members])
         assert union.tube(j).symmetric_difference(expected).area < 1e-6
     rng = np.random.default_rng(0)
-    xy = np.column_stack([rng.uniform(-40, 40, 400), rng.uniform(-40, 40, 400)]) + [3.0, -2.0]
+    xy = rng.uniform(-40, 40, (400, 2)) + np.array([3.0, -2.0])
     for t_rel in (None, rng.uniform(0, 3, 400)):
         got = union.clearance(xy, t_rel)
         each = np.min([m.clearance(xy, t_rel) for m in members], axis=0)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -97,7 +98,7 @@ def test_actions_following_the_minor_mode_raise_it_and_its_region_is_in_c(
     for k in range(1, 6):
         answer = observe(client, "uturn", body(1.0 + k, bimodal(), (0.5, -1.0)))
         posteriors.append(answer["modes"][1]["posterior"])
-    assert all(b > a for a, b in zip(posteriors, posteriors[1:], strict=False))
+    assert all(b > a for a, b in itertools.pairwise(posteriors))
     assert posteriors[-1] > 0.99
     view = client.get("/v1/agents/uturn").json()
     assert view["modes"] == answer["modes"] and view["mode_mass"] == 0.99

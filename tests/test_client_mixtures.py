@@ -49,7 +49,7 @@ def test_trajectories_become_modes_with_the_stated_covariance() -> None:
         assert len(mode["mean"]) == 6
         for k, cov in enumerate(mode["cov"]):
             s = 1.0 + 0.25 * k
-            assert cov == pytest.approx([[(0.1 * s) ** 2, 0.0], [0.0, (0.5 * s) ** 2]])
+            np.testing.assert_allclose(cov, [[(0.1 * s) ** 2, 0.0], [0.0, (0.5 * s) ** 2]])
     assert pred["modes"][1]["mean"][1][0] == pytest.approx(0.2 / dt)
     with pytest.raises(ValidationError):
         from_trajectories([straight], [0.0], dt, 0.0, 5.0)

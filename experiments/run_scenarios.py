@@ -100,6 +100,8 @@ class Step:
     human: tuple[float, float, float, float]
     ego_x: float
     ego_speed: float
+    #: A multi-modal prediction's mode posteriors (in the order given), else None.
+    mode_posteriors: tuple[float, ...] | None = None
 
 
 @dataclass
@@ -237,6 +239,9 @@ def run_scenario(
                         human=tuple(float(v) for v in s),
                         ego_x=ego.x,
                         ego_speed=ego.speed,
+                        mode_posteriors=(
+                            tuple(m.posterior for m in answer.modes) if answer.modes else None
+                        ),
                     )
                 )
                 if keep_contours:

@@ -45,7 +45,9 @@ log = logging.getLogger("frt.exact_worker")
 @dataclass
 class ExactTask:
     """``engine.exact(pose, v_start, bounds, notch_cut, notch_stage)``: with the given engine
-    (threads) or, once pickled to a worker process, with that process's own."""
+    (threads) or, once pickled to a worker process, with that process's own. Bounds of shape
+    [M, 8] (a multi-modal agent's modes in its set) give the union of the M exact sets
+    (``reach.union.exact_union``), which the notch cut does not refine."""
 
     pose: Pose
     v_start: float

@@ -157,3 +157,56 @@ class StopPredictor:
             mean = self.stop_means(current)
             mode = "stop"
         return GaussianPrediction(self.dt, mean, self.covariance(), mode)
+
+
+@dataclass(frozen=True)
+class MixturePrediction:
+    """A multi-modal prediction: per mode a weight and a :class:`GaussianPrediction`."""
+
+    weights: tuple[float, ...]
+    modes: tuple[GaussianPrediction, ...]
+    mode: str = "bimodal"
+
+    def payload(self) -> dict[str, Any]:
+        """The multi-modal ``prediction`` object of API.md."""
+        return {
+            "dt": self.modes[0].dt,
+            "modes": [
+                {"weight": w, "mean": g.mean.tolist(), "cov": g.cov.tolist()}
+                for w, g in zip(self.weights, self.modes, strict=True)
+            ],
+        }
+
+
+@dataclass(frozen=True)
+class BimodalPredictor:
+    """A stand-in for a multi-modal predictor at the U-turn: "keeps going straight" (the
+    single-Gaussian stand-in's prediction, ``base``) with weight ``w_straight``, and "U-turn"
+    (left on ``turn_radius_m`` at ``turn_speed_mps``, accelerating to it at ``accel_mps2``) with
+    the rest, both with ``base``'s covariances. The weights stay fixed: what the service learns
+    about the modes comes from the observed actions alone."""
+
+    base: StopPredictor
+    turn_radius_m: float
+    turn_speed_mps: float = 2.0
+    accel_mps2: float = 2.0
+    w_straight: float = 0.9
+
+    def uturn_means(self, current: Observation) -> np.ndarray:
+        """u1 = v / R (the yaw rate on the circle, left), u2 up to the turning speed."""
+        steps, dt = self.base.steps, self.base.dt
+        mean = np.zeros((steps, 2))
+        mean[:, 0] = self.turn_speed_mps / self.turn_radius_m
+        speed = current.speed
+        for k in range(steps):
+            u2 = min(self.accel_mps2, max(0.0, (self.turn_speed_mps - speed) / dt))
+            mean[k, 1] = u2
+            speed += u2 * dt
+        return mean
+
+    def predict(self, history: Sequence[Observation]) -> MixturePrediction:
+        straight = self.base.predict(history)
+        uturn = GaussianPrediction(
+            straight.dt, self.uturn_means(history[-1]), straight.cov, "uturn"
+        )
+        return MixturePrediction((self.w_straight, 1.0 - self.w_straight), (straight, uturn))

@@ -34,7 +34,9 @@ from frt_client import FRTError
 from experiments.planner import PLAN_DT_S, Detection, EgoCar
 from experiments.predictor import (
     STEP_S,
+    BimodalPredictor,
     GaussianPrediction,
+    MixturePrediction,
     Observation,
     StopPredictor,
     observed_action,
@@ -98,6 +100,8 @@ class Step:
     human: tuple[float, float, float, float]
     ego_x: float
     ego_speed: float
+    #: A multi-modal prediction's mode posteriors (in the order given), else None.
+    mode_posteriors: tuple[float, ...] | None = None
 
 
 @dataclass
@@ -172,7 +176,7 @@ def run_scenario(
     *,
     beta_low: float = BETA_LOW,
     gamma: float = GAMMA,
-    predictor: StopPredictor | None = None,
+    predictor: StopPredictor | BimodalPredictor | None = None,
     duration_s: float | None = None,
     keep_contours: bool = True,
     deadline_ms: float = DEADLINE_MS,
@@ -207,7 +211,7 @@ def run_scenario(
     obs_every = round(STEP_S / PLAN_DT_S)
     substeps = round(PLAN_DT_S / TRUTH_DT_S)
     n_ticks = round(duration / PLAN_DT_S)
-    prediction: GaussianPrediction | None = None
+    prediction: GaussianPrediction | MixturePrediction | None = None
     try:
         for k in range(n_ticks + 1):
             t = k * PLAN_DT_S
@@ -235,6 +239,9 @@ def run_scenario(
                         human=tuple(float(v) for v in s),
                         ego_x=ego.x,
                         ego_speed=ego.speed,
+                        mode_posteriors=(
+                            tuple(m.posterior for m in answer.modes) if answer.modes else None
+                        ),
                     )
                 )
                 if keep_contours:
@@ -280,8 +287,17 @@ def run_scenario(
     return run
 
 
+def bimodal_predictor(sc: Scene) -> BimodalPredictor:
+    """The U-turn's multi-modal stand-in: the single-Gaussian stand-in ("keeps going straight",
+    0.9) and the U-turn on the scene's radius (0.1)."""
+    radius = sc.driver.turn_radius_m
+    assert radius is not None, "the U-turn scene turns on a radius"
+    return BimodalPredictor(predictor_for(sc), turn_radius_m=radius, w_straight=0.9)
+
+
 def run_all_scenes(client: Any, **kwargs: Any) -> dict[str, dict[str, ScenarioRun]]:
-    """Both scenes, confidence on and off: ``{scene: {"on": run, "off": run}}``."""
+    """Both scenes, confidence on and off: ``{scene: {"on": run, "off": run}}``; and the U-turn
+    with the bimodal stand-in predictor (``uturn_bimodal``)."""
     out: dict[str, dict[str, ScenarioRun]] = {}
     for name in ("uturn", "stop_sign"):
         sc = scene(name)
@@ -289,6 +305,12 @@ def run_all_scenes(client: Any, **kwargs: Any) -> dict[str, dict[str, ScenarioRu
             "on": run_scenario(client, sc, True, **kwargs),
             "off": run_scenario(client, sc, False, **kwargs),
         }
+        if name == "uturn":
+            two = bimodal_predictor(sc)
+            out["uturn_bimodal"] = {
+                "on": run_scenario(client, sc, True, predictor=two, **kwargs),
+                "off": run_scenario(client, sc, False, predictor=two, **kwargs),
+            }
     return out
 
 
@@ -324,12 +346,18 @@ def table(runs: dict[str, dict[str, ScenarioRun]]) -> str:
     for name, pair in runs.items():
         for mode in ("on", "off"):
             s = pair[mode].summary()
-            p = PAPER[name][mode]
-            paper = (
-                f"{p['detection_distance_m']} m / "
-                + (f"{p['deceleration_mps2']} / {p['stop_time_s']} s" if p["stop_time_s"] else "—")
-                + f" / {'crash' if p['collision'] else 'no'}"
-            )
+            p = PAPER.get(name, {}).get(mode)
+            paper = "—"  # the paper has no multi-modal predictor
+            if p is not None:
+                paper = (
+                    f"{p['detection_distance_m']} m / "
+                    + (
+                        f"{p['deceleration_mps2']} / {p['stop_time_s']} s"
+                        if p["stop_time_s"]
+                        else "—"
+                    )
+                    + f" / {'crash' if p['collision'] else 'no'}"
+                )
             rows.append(
                 f"| {name} | {mode} | {_fmt(s['detection_distance_m'])} "
                 f"| {_fmt(s['deceleration_mps2'])} | {_fmt(s['stop_time_s'])} "

@@ -16,7 +16,10 @@ it with httpx from this process. Prints medians and p99 for:
    refinement's first stage is served (``frt_refinement_stage: 1``), and, observed 1.5 s apart
    (the fine stage is skipped when it would land after the next observation), until its last is;
    polled every 2 ms; the bench passes the caller's ``FRT_*`` environment to the service;
-3. contours for one agent (tube + 3 slices), on a fresh FRT version each time;
+3. contours for one agent (tube + 3 slices), on a fresh FRT version each time; then multi-modal
+   agents: observation -> new FRT ready through one request with 1 and with 6 modes (the set the
+   union of the 6 modes' tubes), and the warm 20-point time-indexed check of the 6-mode agent
+   (``--modes-only``: these rows and the single-mode warm check alone);
 4. sustained: 50 agents observed at 2 Hz while a planner (a process of its own) checks all of
    them at 10 Hz with one multi-agent request per round; a round misses its deadline when its
    end-to-end time exceeds the request's ``deadline_ms`` (20 ms); run twice, the planner
@@ -211,6 +214,56 @@ def bench_observe_to_ready(client: httpx.Client, n: int) -> dict[str, dict]:
         "observation_to_frt_ready": stats(two),
         "observation_to_frt_ready_one_request": stats(one),
     }
+
+
+def mixture(rng: np.random.Generator, n_modes: int) -> dict:
+    """A prediction of ``n_modes`` equally weighted modes, their mean steering spread over
+    [-0.4, 0.4] rad/s (distinct sets, none containing another)."""
+    modes = []
+    for m, u1 in enumerate(np.linspace(-0.4, 0.4, n_modes) if n_modes > 1 else [0.0]):
+        single = prediction(rng)
+        single["mean"] = [[float(u1), u2 + 0.1 * m] for _, u2 in single["mean"]]
+        modes.append({"weight": 1.0, "mean": single["mean"], "cov": single["cov"]})
+    return {"dt": 0.5, "modes": modes}
+
+
+def mixture_observation(t: float, rng: np.random.Generator, n_modes: int) -> dict:
+    """An observation with an ``n_modes`` mixture and no scored action: every mode keeps its
+    weight, so the served set is the union of all ``n_modes`` tubes."""
+    body = observation(t, rng, True)
+    body["prediction"] = mixture(rng, n_modes)
+    return body
+
+
+def bench_modes(client: httpx.Client, n: int, n_checks: int) -> dict[str, dict]:
+    """Multi-modal agents: observation -> exact set ready with 1 and 6 modes (one request with
+    ``?wait_frt_ms=``), and the warm 20-point time-indexed check of a 6-mode agent."""
+    rng = np.random.default_rng(5)
+    out: dict[str, dict] = {}
+    for n_modes in (1, 6):
+        agent = f"bench-modes{n_modes}"
+        client.post(
+            f"/v1/agents/{agent}/observations", json=mixture_observation(0.0, rng, n_modes)
+        ).raise_for_status()
+        times = [
+            observe_until_ready(client, agent, mixture_observation(float(i), rng, n_modes))
+            for i in range(1, n + 1)
+        ]
+        out[f"observation_to_frt_ready_{n_modes}_mode{'s' if n_modes > 1 else ''}"] = stats(times)
+    agent = "bench-modes6"
+    body = {"trajectory": trajectory(float(n) + 0.1), "mode": "time_indexed", "deadline_ms": 1000}
+    client.post(f"/v1/agents/{agent}/collision-check", json=body).raise_for_status()  # warm
+    body["deadline_ms"] = 5
+    times, conservative = [], 0
+    for _ in range(n_checks):
+        t0 = time.perf_counter()
+        r = client.post(f"/v1/agents/{agent}/collision-check", json=body)
+        times.append(time.perf_counter() - t0)
+        conservative += r.json()["conservative"]
+    out["collision_check_20pt_warm_6_modes"] = {**stats(times), "conservative": conservative}
+    for n_modes in (1, 6):
+        client.delete(f"/v1/agents/bench-modes{n_modes}").raise_for_status()
+    return out
 
 
 def bench_observe_to_ready_wide(client: httpx.Client, n: int, n_fine: int = 15) -> dict[str, dict]:
@@ -681,17 +734,29 @@ def main() -> None:
         help="run the sustained case this many times per transport (one server), to count how "
         "often a round is late rather than quote one run; the first run's full figures are kept",
     )
+    parser.add_argument(
+        "--modes-only",
+        action="store_true",
+        help="run only the multi-modal rows and the single-mode rows beside them",
+    )
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "bench.json")
     args = parser.parse_args()
     results: dict = {}
     with running_service(args.model.resolve()) as url:
-        if not args.sustained_only:
+        if args.modes_only:
+            with httpx.Client(base_url=url, timeout=10) as client:
+                results["collision_check_20pt_warm"] = bench_collision(client, args.checks)
+                results.update(bench_modes(client, args.observations, args.checks))
+                client.delete("/v1/agents/bench-cc").raise_for_status()
+            args.sustained_runs = 0
+        elif not args.sustained_only:
             with httpx.Client(base_url=url, timeout=10) as client:
                 results["collision_check_20pt_warm"] = bench_collision(client, args.checks)
                 results["http_floor_get_healthz"] = bench_http_floor(client, args.checks)
                 results.update(bench_observe_to_ready(client, args.observations))
                 results.update(bench_observe_to_ready_wide(client, args.observations))
                 results["contours_tube_plus_3_slices"] = bench_contours(client, args.observations)
+                results.update(bench_modes(client, args.observations, args.checks))
                 # The planner checks every known agent: the sustained case's 50 and no others.
                 for agent in ("bench-cc", "bench-obs", "bench-obs1", "bench-wide", "bench-frt"):
                     client.delete(f"/v1/agents/{agent}").raise_for_status()
@@ -706,7 +771,7 @@ def main() -> None:
                 results.setdefault(SUSTAINED_KEYS[transport], sustained)
         if args.sustained_runs > 1:
             results["sustained_runs"] = runs
-    if not args.sustained_only:
+    if not (args.sustained_only or args.modes_only):
         results.update(bench_exact_in_process(args.model.resolve(), args.observations))
         results.update(bench_serialisation(args.checks))
         results["naive_dense_grid_per_query"] = bench_naive(args.model.resolve(), args.naive)

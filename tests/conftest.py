@@ -35,7 +35,9 @@ READY_TIMEOUT_S = 120.0
 loading a model and warming the exact-set workers takes tens of seconds."""
 
 
-def wait_ready(url: str, timeout_s: float = READY_TIMEOUT_S, proc: subprocess.Popen | None = None) -> None:
+def wait_ready(
+    url: str, timeout_s: float = READY_TIMEOUT_S, proc: subprocess.Popen | None = None
+) -> None:
     """Until the server at ``url`` is ready: patient, since on a 2-core machine busy with other
     work a server loading the shipped model and warming its workers takes tens of seconds."""
     deadline = time.monotonic() + timeout_s

@@ -29,13 +29,17 @@ from frt_client.inputs import (
     BOUND_COLUMNS,
     AgentConfig,
     HumanState,
+    MixturePrediction,
     ObservedAction,
     Prediction,
+    PredictionMode,
     TrajectoryPoint,
 )
+from frt_client.mixtures import from_mixture, from_trajectories
 from frt_client.models import (
     Agent,
     AgentContours,
+    AgentMode,
     Belief,
     CollisionAnswer,
     CollisionCheck,
@@ -63,6 +67,7 @@ __all__ = [
     "Agent",
     "AgentConfig",
     "AgentContours",
+    "AgentMode",
     "AsyncFRTClient",
     "AsyncStream",
     "AuthError",
@@ -82,6 +87,7 @@ __all__ = [
     "FRTResult",
     "Health",
     "HumanState",
+    "MixturePrediction",
     "ModelCard",
     "MultiCollisionCheck",
     "NotFoundError",
@@ -89,6 +95,7 @@ __all__ = [
     "ObservedAction",
     "PayloadTooLargeError",
     "Prediction",
+    "PredictionMode",
     "Readiness",
     "RetryPolicy",
     "ServerError",
@@ -96,4 +103,6 @@ __all__ = [
     "TrajectoryPoint",
     "UnavailableError",
     "ValidationError",
+    "from_mixture",
+    "from_trajectories",
 ]

@@ -66,6 +66,7 @@ def observe(
     observed_action: Any = None,
     config: Any = None,
     wait_frt_ms: float = 0.0,
+    agent_class: str | None = None,
 ) -> Call[ObservationResult]:
     body = inputs.without_none(
         {
@@ -74,6 +75,7 @@ def observe(
             "observed_action": inputs.action(observed_action),
             "prediction": inputs.prediction(prediction),
             "config": inputs.config(config),
+            "agent_class": agent_class,
         }
     )
     return Call(

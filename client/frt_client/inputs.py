@@ -137,8 +137,26 @@ def action(value: Any) -> dict[str, Any] | None:
     return _model(ObservedAction, value, "observed_action", ("steering_rate", "acceleration"))
 
 
+class PredictionMode(RequestPart):
+    """One mode of a multi-modal prediction: its weight and its Gaussian, one row per step."""
+
+    weight: float
+    mean: list[list[float]]
+    cov: list[list[list[float]]]
+
+
+class MixturePrediction(RequestPart):
+    """A multi-modal prediction (at most 32 modes; see :mod:`frt_client.mixtures`)."""
+
+    dt: float
+    modes: list[PredictionMode]
+
+
 def prediction(value: Any) -> dict[str, Any]:
-    """A :class:`Prediction`, or a mapping with ``dt``, ``mean`` and ``cov``."""
+    """A :class:`Prediction` or :class:`MixturePrediction`, or a mapping with ``dt`` and either
+    ``mean`` and ``cov`` or ``modes``."""
+    if isinstance(value, MixturePrediction) or (isinstance(value, Mapping) and "modes" in value):
+        return _model(MixturePrediction, value, "prediction", ("dt", "modes"))
     return _model(Prediction, value, "prediction", ("dt", "mean", "cov"))
 
 

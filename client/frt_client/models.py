@@ -55,6 +55,19 @@ class EffectiveConfig(Response):
     bounds_fit: str
 
 
+class AgentMode(Response):
+    """One mode of a multi-modal agent, in the order given."""
+
+    weight: float
+    #: P(mode | observed actions).
+    posterior: float
+    #: This mode's confidence E[beta | mode].
+    beta: float
+    #: Whether the served FRT includes this mode's tube, and from which bounds.
+    in_set: bool
+    control_bounds: ControlBounds | None = None
+
+
 class ObservationResult(Response):
     """Answer to :meth:`FRTClient.observe`."""
 
@@ -67,6 +80,10 @@ class ObservationResult(Response):
     action_scored: bool = False
     #: Whether the exact FRT of this version was computed when the answer left (``wait_frt_ms``).
     frt_ready: bool = False
+    #: A multi-modal agent's modes (None for a single Gaussian) and the posterior share the
+    #: served set's modes hold at least.
+    modes: tuple[AgentMode, ...] | None = None
+    mode_mass: float | None = None
 
 
 class Agent(Response):
@@ -89,6 +106,9 @@ class Agent(Response):
     #: How many stages of that tightening the served set has had (0: none yet).
     frt_refinement_stage: int | None = None
     config: EffectiveConfig | None = None
+    agent_class: str = "car"
+    modes: tuple[AgentMode, ...] | None = None
+    mode_mass: float | None = None
 
 
 class DeleteResult(Response):

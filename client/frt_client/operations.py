@@ -46,6 +46,7 @@ class Operations:
         observed_action: Any = None,
         config: Any = None,
         wait_frt_ms: float = 0.0,
+        agent_class: str | None = None,
     ) -> ObservationResult:
         """Report a new observation of one human; never sent twice (see :mod:`frt_client.retry`).
 
@@ -54,11 +55,14 @@ class Operations:
             timestamp: seconds on the caller's clock; must increase per agent (else 409).
             state: ``(x, y, heading, speed)``, a mapping, or :class:`~frt_client.HumanState`.
             prediction: ``{"dt", "mean": (S, 2), "cov": (S, 2, 2)}`` or
-                :class:`~frt_client.Prediction`; arrays may be numpy.
+                :class:`~frt_client.Prediction`; arrays may be numpy. A multi-modal one:
+                ``{"dt", "modes": [{"weight", "mean", "cov"}, ...]}`` (:mod:`frt_client.mixtures`).
             observed_action: ``(steering_rate, acceleration)`` taken since the previous
                 observation, scored against the first step of the previous prediction;
                 ``None`` on the first observation.
             config: per-agent settings (:class:`~frt_client.AgentConfig` or mapping), from now on.
+            agent_class: ``"car"`` (the service's default), ``"cyclist"`` or ``"pedestrian"``;
+                fixed for the agent once set (409 if changed).
             wait_frt_ms: answer once the new version's exact FRT is computed or this much time
                 has passed (at most 10 000; ``frt_ready`` says which; HTTP only): the fresh set
                 in one request instead of a following ``get_agent(wait_frt_ms=...)``.
@@ -72,6 +76,7 @@ class Operations:
                 observed_action=observed_action,
                 config=config,
                 wait_frt_ms=wait_frt_ms,
+                agent_class=agent_class,
             )
         )
 
@@ -216,6 +221,7 @@ class AsyncOperations:
         observed_action: Any = None,
         config: Any = None,
         wait_frt_ms: float = 0.0,
+        agent_class: str | None = None,
     ) -> ObservationResult:
         """Report a new observation of one human; never sent twice (see :mod:`frt_client.retry`).
 
@@ -224,11 +230,14 @@ class AsyncOperations:
             timestamp: seconds on the caller's clock; must increase per agent (else 409).
             state: ``(x, y, heading, speed)``, a mapping, or :class:`~frt_client.HumanState`.
             prediction: ``{"dt", "mean": (S, 2), "cov": (S, 2, 2)}`` or
-                :class:`~frt_client.Prediction`; arrays may be numpy.
+                :class:`~frt_client.Prediction`; arrays may be numpy. A multi-modal one:
+                ``{"dt", "modes": [{"weight", "mean", "cov"}, ...]}`` (:mod:`frt_client.mixtures`).
             observed_action: ``(steering_rate, acceleration)`` taken since the previous
                 observation, scored against the first step of the previous prediction;
                 ``None`` on the first observation.
             config: per-agent settings (:class:`~frt_client.AgentConfig` or mapping), from now on.
+            agent_class: ``"car"`` (the service's default), ``"cyclist"`` or ``"pedestrian"``;
+                fixed for the agent once set (409 if changed).
             wait_frt_ms: answer once the new version's exact FRT is computed or this much time
                 has passed (at most 10 000; ``frt_ready`` says which; HTTP only).
         """
@@ -241,6 +250,7 @@ class AsyncOperations:
                 observed_action=observed_action,
                 config=config,
                 wait_frt_ms=wait_frt_ms,
+                agent_class=agent_class,
             )
         )
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_serializer, model_validator
 
 from reach.contract import BOUND_COLUMNS
 
@@ -19,6 +19,9 @@ PREDICTION_STEPS_CAP = 4096
 TRAJECTORY_POINTS_CAP = 100_000
 AGENTS_PER_CHECK_CAP = 10_000
 SLICES_CAP = 256
+#: Modes of a multi-modal prediction parsed at most (the service allows ``MAX_MODES``).
+MODES_CAP = 256
+MAX_MODES = 32
 
 #: Sanity bounds on magnitudes (metres, seconds, radians); finer ranges come from the model card.
 COORD_MAX = 1e7
@@ -81,6 +84,41 @@ class Prediction(Request):
     cov: list[Mat2] = Field(min_length=1, max_length=PREDICTION_STEPS_CAP)
 
 
+class PredictionMode(Request):
+    """One mode of a multi-modal prediction: its weight and its Gaussian over the controls."""
+
+    weight: float = Field(gt=0.0, description="positive; the modes' weights are normalised")
+    mean: list[Vec2] = Field(min_length=1, max_length=PREDICTION_STEPS_CAP)
+    cov: list[Mat2] = Field(min_length=1, max_length=PREDICTION_STEPS_CAP)
+
+
+class ObservationPrediction(Request):
+    """An observation's prediction: one Gaussian (``mean``, ``cov``) or a mixture (``modes``),
+    one step per ``dt``. One mode means the single-Gaussian form."""
+
+    dt: float = Field(gt=0.0, le=60.0, description="seconds between steps")
+    mean: list[Vec2] | None = Field(None, min_length=1, max_length=PREDICTION_STEPS_CAP)
+    cov: list[Mat2] | None = Field(None, min_length=1, max_length=PREDICTION_STEPS_CAP)
+    modes: list[PredictionMode] | None = Field(
+        None,
+        min_length=1,
+        max_length=MODES_CAP,
+        description=f"at most {MAX_MODES}; each with the same dt and step layout",
+    )
+
+    @model_validator(mode="after")
+    def _one_form(self) -> ObservationPrediction:
+        if self.modes is not None:
+            if self.mean is not None or self.cov is not None:
+                raise ValueError("give either mean and cov, or modes, not both")
+        elif self.mean is None or self.cov is None:
+            raise ValueError("give mean and cov, or modes")
+        return self
+
+
+AgentClassName = Literal["car", "cyclist", "pedestrian"]
+
+
 class AgentConfig(Request):
     """Per-agent settings; omitted fields keep the agent's (or the server's) values."""
 
@@ -89,6 +127,12 @@ class AgentConfig(Request):
     epsilon: float | None = Field(None, ge=0.0, lt=1.0)
     collision_radius: Radius | None = None
     bounds_fit: BoundsFit | None = None
+    mode_mass: float | None = Field(
+        None, gt=0.0, le=1.0, description="share of the mode posterior the served set holds"
+    )
+    mode_floor: float | None = Field(
+        None, ge=0.0, lt=1.0, description="a mode above this posterior is never dropped"
+    )
 
 
 class EffectiveConfig(Response):
@@ -175,11 +219,43 @@ class ObservationRequest(Request):
     observed_action: ObservedAction | None = Field(
         None, description="the action taken since the previous observation; null on the first"
     )
-    prediction: Prediction
+    prediction: ObservationPrediction
     config: AgentConfig | None = None
+    agent_class: AgentClassName | None = Field(
+        None, description="car (default), cyclist or pedestrian; fixed for an agent once set"
+    )
 
 
-class ObservationResponse(Response):
+class ModeOut(Response):
+    """One mode of an agent's multi-modal prediction, in the order given."""
+
+    weight: float = Field(description="the predictor's weight, normalised")
+    posterior: float = Field(description="P(mode | observed actions), the joint belief's marginal")
+    beta: float = Field(description="this mode's confidence: E[beta | mode]")
+    in_set: bool = Field(description="whether the served FRT includes this mode's tube")
+    control_bounds: ControlBoundsOut | None = Field(
+        None, description="the bounds of this mode's tube, if in the set"
+    )
+
+
+class _DropsUnsetModes(Response):
+    """A response whose ``modes`` and ``mode_mass`` appear only for a multi-modal agent."""
+
+    modes: list[ModeOut] | None = None
+    mode_mass: float | None = Field(
+        None, description="the share of the mode posterior the served set's modes hold at least"
+    )
+
+    @model_serializer(mode="wrap")
+    def _drop_unset_modes(self, handler: Any) -> dict[str, Any]:
+        data = handler(self)
+        if self.modes is None:
+            data.pop("modes", None)
+            data.pop("mode_mass", None)
+        return data  # type: ignore[no-any-return]
+
+
+class ObservationResponse(_DropsUnsetModes):
     agent_id: str
     timestamp: float
     beta: float
@@ -192,7 +268,7 @@ class ObservationResponse(Response):
     )
 
 
-class AgentResponse(Response):
+class AgentResponse(_DropsUnsetModes):
     agent_id: str
     timestamp: float
     state: dict[str, float] = Field(description="pose and speed at the last observation")
@@ -217,6 +293,7 @@ class AgentResponse(Response):
         "has had (0: uncut; the last stage means frt_refinement is done); null before",
     )
     config: EffectiveConfig
+    agent_class: str = Field("car", description="car, cyclist or pedestrian")
 
 
 class DeleteResponse(Response):

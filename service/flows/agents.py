@@ -16,6 +16,7 @@ from reach.engine import FRTEngine, OutOfRangeError
 from service.api.errors import AgentNotFoundError, FieldError, StaleTimestampError
 from service.api.limits import check_prediction_steps
 from service.api.schemas import (
+    MAX_MODES,
     AgentResponse,
     BeliefOut,
     ControlBoundsOut,
@@ -27,6 +28,14 @@ from service.api.schemas import (
 )
 from service.flows.bounds import PredictionError, control_bounds, validate_prediction
 from service.flows.confidence import Belief, hypotheses, prior_belief, update_belief
+from service.flows.mode_states import (
+    build_mode_state,
+    check_class_ranges,
+    class_limits,
+    modes_out,
+    resolve_class,
+)
+from service.flows.modes import Mixture, validate_mixture
 from service.runtime.services import Services
 from service.runtime.settings import Settings
 from service.runtime.store import AgentState
@@ -67,8 +76,10 @@ def fit_bounds(
     gamma: float,
     bounds_fit: str,
     settings: Settings,
+    limits: tuple[float, float] | None = None,
 ) -> np.ndarray:
-    """The eight control bounds (contract order) of a prediction tempered by beta."""
+    """The eight control bounds (contract order) of a prediction tempered by beta, within
+    ``limits`` (default: the server's hard limits)."""
     try:
         bounds = control_bounds(
             mean,
@@ -78,7 +89,7 @@ def fit_bounds(
             gamma,
             horizon=settings.horizon_s,
             method=bounds_fit,  # type: ignore[arg-type]
-            limits=(settings.u1_limit, settings.u2_limit),
+            limits=limits or (settings.u1_limit, settings.u2_limit),
         )
     except PredictionError as exc:
         raise prediction_error(exc) from None
@@ -121,7 +132,7 @@ async def observe(
     await services.priority.observation_turn()
     settings = services.settings
     engine = services.require_engine()
-    check_prediction_steps("prediction", request.prediction.mean, settings)
+    request, mixture = _prediction_form(request, settings)
     patch = request.config.model_dump(exclude_none=True) if request.config else {}
     previous = await services.store.get(agent_id)
     if previous is not None and request.timestamp <= previous.timestamp:
@@ -130,7 +141,22 @@ async def observe(
 
     def build(prior: AgentState | None, mean: np.ndarray, cov: np.ndarray) -> AgentState:
         overrides = {**(prior.config if prior else {}), **patch}
+        klass = resolve_class(agent_id, request.agent_class, prior, overrides)
         config = effective_config(settings, overrides)
+        if mixture is not None or (prior is not None and prior.modes is not None):
+            state, marginal = build_mode_state(
+                agent_id,
+                request,
+                prior,
+                mixture or Mixture(request.prediction.dt, np.ones(1), mean[None], cov[None]),
+                overrides,
+                config,
+                klass,
+                settings,
+                engine,
+            )
+            built.append(marginal)
+            return state
         belief = _belief(prior, config["beta_low"])
         action = request.observed_action
         if action is not None and prior is not None:
@@ -140,9 +166,19 @@ async def observe(
             belief = update_belief(belief, observed, prev_mean, prev_cov, config["epsilon"])
         dt = request.prediction.dt
         bounds = fit_bounds(
-            mean, cov, dt, belief.beta, config["gamma"], config["bounds_fit"], settings
+            mean,
+            cov,
+            dt,
+            belief.beta,
+            config["gamma"],
+            config["bounds_fit"],
+            settings,
+            limits=class_limits(klass, settings),
         )
-        check_ranges(engine, request.state.speed, bounds, bounds_field="prediction")
+        if klass.name == "car":
+            check_ranges(engine, request.state.speed, bounds, bounds_field="prediction")
+        else:
+            check_class_ranges(engine, klass, request.state.speed, bounds)
         built.append(belief)
         return AgentState(
             agent_id=agent_id,
@@ -159,7 +195,10 @@ async def observe(
         )
 
     def first_try() -> tuple[np.ndarray, np.ndarray, AgentState]:
-        mean, cov = validated_prediction(request.prediction, settings)
+        if mixture is not None:
+            mean, cov = mixture.means[0], mixture.covs[0]
+        else:
+            mean, cov = validated_prediction(request.prediction, settings)
         return mean, cov, build(previous, mean, cov)
 
     mean, cov, candidate = first_try()
@@ -189,7 +228,34 @@ async def observe(
         # A previous state existed exactly when the version went past 1.
         action_scored=request.observed_action is not None and state.frt_version > 1,
         frt_ready=services.scheduler.is_ready(job.key),
+        modes=modes_out(state.modes),
+        mode_mass=state.modes["mode_mass"] if state.modes else None,
     )
+
+
+def _prediction_form(
+    request: ObservationRequest, settings: Settings
+) -> tuple[ObservationRequest, Mixture | None]:
+    """The request with a one-mode mixture in the single-Gaussian form (answered exactly as that
+    form is), and the validated mixture if there are several modes (422 naming the field)."""
+    modes = request.prediction.modes
+    if modes is None:
+        check_prediction_steps("prediction", request.prediction.mean, settings)
+        return request, None
+    for m, mode in enumerate(modes[:MAX_MODES]):
+        check_prediction_steps(f"prediction.modes.{m}", mode.mean, settings)
+    if len(modes) == 1:
+        plain = request.prediction.model_copy(
+            update={"mean": modes[0].mean, "cov": modes[0].cov, "modes": None}
+        )
+        return request.model_copy(update={"prediction": plain}), None
+    try:
+        mixture = validate_mixture(
+            modes, request.prediction.dt, settings.max_prediction_steps, MAX_MODES
+        )
+    except PredictionError as exc:
+        raise prediction_error(exc) from None
+    return request, mixture
 
 
 def _same(a: AgentState | None, b: AgentState | None) -> bool:
@@ -239,6 +305,9 @@ async def get_agent(services: Services, agent_id: str, wait_frt_s: float = 0.0) 
         frt_refinement=services.refinement_state(exact, key),
         frt_refinement_stage=services.refinement_stage(exact),
         config=EffectiveConfig(beta_high=float(belief.betas[-1]), **config),
+        agent_class=state.config.get("agent_class", "car"),
+        modes=modes_out(state.modes),
+        mode_mass=state.modes["mode_mass"] if state.modes else None,
     )
 
 

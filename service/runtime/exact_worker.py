@@ -35,6 +35,7 @@ from reach.notch import NOTCH_STAGES
 from reach.polygons import compile_polygon_kernel
 from reach.sets import FRTSet
 from reach.speed_programme import compile_speed_programme
+from reach.union import exact_union
 from service.runtime.memory import freeze_start_up_objects, keep_freed_memory
 from service.runtime.pipe_pool import PipePool
 
@@ -44,7 +45,9 @@ log = logging.getLogger("frt.exact_worker")
 @dataclass
 class ExactTask:
     """``engine.exact(pose, v_start, bounds, notch_cut, notch_stage)``: with the given engine
-    (threads) or, once pickled to a worker process, with that process's own. The set's tubes
+    (threads) or, once pickled to a worker process, with that process's own. Bounds of shape
+    [M, 8] (a multi-modal agent's modes in its set) give the union of the M exact sets
+    (``reach.union.exact_union``), which the notch cut does not refine. The set's tubes
     0..``tubes_upto`` are drawn before it is returned (``FRTSet.draw_tubes``; -1: none but those
     the engine draws), so that time-indexed checks find them instead of drawing them on the event
     loop (``service.runtime.tube_demand``)."""
@@ -73,13 +76,16 @@ class ExactTask:
         engine = self.engine if self.engine is not None else _engine
         if engine is None:
             raise RuntimeError("no engine in this process")
-        frt = engine.exact(
-            self.pose,
-            self.v_start,
-            self.bounds,
-            notch_cut=self.notch_cut,
-            notch_stage=self.notch_stage,
-        )
+        if np.ndim(self.bounds) == 2:  # a multi-modal set: one row of bounds per mode
+            frt: FRTSet = exact_union(engine, self.pose, self.v_start, self.bounds)
+        else:
+            frt = engine.exact(
+                self.pose,
+                self.v_start,
+                self.bounds,
+                notch_cut=self.notch_cut,
+                notch_stage=self.notch_stage,
+            )
         if self.tubes_upto >= 0:
             frt.draw_tubes(self.tubes_upto)
         return frt

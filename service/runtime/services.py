@@ -23,13 +23,16 @@ from starlette.requests import HTTPConnection
 
 from models.runtime import ModelCard, ValueModel
 from models.value_fields import engine_for, network_decision
+from reach.contract import BOUND_COLUMNS
 from reach.engine import FRTEngine
 from reach.frames import Pose
 from reach.notch import NOTCH_STAGES
 from reach.polygons import compile_polygon_kernel
 from reach.sets import FRTSet
+from reach.union import conservative_union
 from service.api.errors import ServiceUnavailableError
 from service.api.schemas import ActiveParts, NetworkPart
+from service.flows.mode_states import set_bounds
 from service.flows.tube_builder import TubeBuilder
 from service.runtime.answer_cost import AnswerCosts
 from service.runtime.exact_worker import ExactTask, start_pool, warm_up_task
@@ -57,7 +60,9 @@ class FRTJob:
     @classmethod
     def make(cls, agent_id: str, version: int, pose: Pose, v_start: float, bounds: Any) -> FRTJob:
         bounds = np.asarray(bounds, dtype=np.float64)
-        inputs = (pose.x, pose.y, pose.heading, v_start, *bounds.tolist())
+        inputs = (pose.x, pose.y, pose.heading, v_start, *bounds.ravel().tolist())
+        if bounds.size > len(BOUND_COLUMNS):  # a multi-modal set: one row per mode, a union
+            bounds = bounds.reshape(-1, len(BOUND_COLUMNS))
         return cls(FRTKey.of(agent_id, version, inputs), pose, float(v_start), bounds)
 
 
@@ -228,7 +233,7 @@ class Services:
             state.y,
             state.heading,
             state.speed,
-            tuple(state.control_bounds),
+            tuple(set_bounds(state)),
         )
 
     def forget(self, agent_id: str) -> None:
@@ -307,7 +312,10 @@ class Services:
 
         def compute() -> FRTSet:
             start = time.perf_counter()
-            result = engine.conservative(job.pose, job.v_start, job.bounds)
+            if job.bounds.ndim == 2:
+                result = conservative_union(engine, job.pose, job.v_start, job.bounds)
+            else:
+                result = engine.conservative(job.pose, job.v_start, job.bounds)
             elapsed = time.perf_counter() - start
             self.metrics.frt_compute_seconds.labels("conservative").observe(elapsed)
             return result

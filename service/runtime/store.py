@@ -46,6 +46,9 @@ class AgentState:
     config: dict[str, Any] = field(default_factory=dict)
     #: Bumped by every observation; names the FRT the agent's collision checks are answered from.
     frt_version: int = 1
+    #: A multi-modal agent's joint belief, modes and mode set (``service.flows.modes``); None for
+    #: a single Gaussian.
+    modes: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """A deep copy in JSON types (what the Redis store writes): ~6x faster than

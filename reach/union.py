@@ -1,0 +1,100 @@
+"""The union of several FRT sets of one human: the set of a multi-modal prediction.
+
+Each member is a set the engine built for one mode's control bounds (``FRTEngine.exact`` or
+``FRTEngine.conservative``), all from the same pose; a position is in the union when it is in some
+member, so K, every slice, interval and tube of the union is the union of the members'. Each
+member contains the reachable set of its mode's bounds, so the union contains the reachable set of
+every member's mode: the union of certified sets is certified.
+
+Clearance: where the members measure distances to their drawn tubes (the exact sets), the union
+does too, to the union of the members' tubes: outside K that is the minimum of the members'
+distances, and inside it is at most that minimum (the depth in the union is at least the depth in
+any member). Otherwise (the conservative box sets) it is the minimum of the members' clearances,
+which has the same sign everywhere.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import shapely
+from shapely.geometry.base import BaseGeometry
+
+from reach.engine import FRTEngine
+from reach.frames import Pose
+from reach.sets import FRTSet
+
+
+class UnionSet(FRTSet):
+    """The union of ``members`` (same pose, slices and horizon)."""
+
+    def __init__(self, members: Sequence[FRTSet]) -> None:
+        if not members:
+            raise ValueError("a union needs at least one member")
+        first = members[0]
+        for m in members[1:]:
+            same = (m.pose, m.slice_dt, m.horizon_s, m.n_slices)
+            if same != (first.pose, first.slice_dt, first.horizon_s, first.n_slices):
+                raise ValueError("the members of a union must share pose, slices and horizon")
+        super().__init__(
+            first.pose,
+            first.slice_dt,
+            first.horizon_s,
+            first.n_slices,
+            conservative=any(m.conservative for m in members),
+        )
+        self.members = tuple(members)
+        self.evaluations = sum(m.evaluations for m in members)
+        self.clearance_from_tubes = all(m.clearance_from_tubes for m in members)
+        self._tubes: dict[int, BaseGeometry] = {}
+
+    def _union(self, parts: list[BaseGeometry]) -> BaseGeometry:
+        return parts[0] if len(parts) == 1 else shapely.union_all(parts)
+
+    def tube(self, j: int) -> BaseGeometry:
+        cached = self._tubes.get(j)
+        if cached is None:
+            cached = self._union([m.tube(j) for m in self.members])
+            self._tubes[j] = cached
+        return cached
+
+    def slice(self, j: int) -> BaseGeometry:
+        return self._union([m.slice(j) for m in self.members])
+
+    def interval(self, j: int) -> BaseGeometry:
+        return self._union([m.interval(j) for m in self.members])
+
+    def clearance(self, xy_world: np.ndarray, t_rel: np.ndarray | None = None) -> np.ndarray:
+        if self.clearance_from_tubes:
+            return super().clearance(xy_world, t_rel)
+        distances = [np.asarray(m.clearance(xy_world, t_rel)) for m in self.members]
+        return np.min(np.stack(distances), axis=0)
+
+    def missing_tubes(self, indices: list[int]) -> list[int]:
+        if not self.clearance_from_tubes:
+            return []
+        return [j for j in dict.fromkeys(indices) if j not in self._tubes]
+
+    def nearest_built_tube(self, j: int) -> int:
+        if not self.clearance_from_tubes:
+            return j
+        built = [k for k in self._tubes if k >= j]
+        return min(built) if built else self.n_slices - 1
+
+
+def exact_union(engine: FRTEngine, pose: Pose, v_start: float, bounds: np.ndarray) -> UnionSet:
+    """The engine's exact set of each row of ``bounds`` [M, 8] (uncut by the notch stages), as one
+    union whose whole-horizon tube is drawn (collision checks need it first)."""
+    members = [engine.exact(pose, v_start, b, notch_cut=False) for b in np.asarray(bounds)]
+    union = UnionSet(members)
+    union.tube(union.n_slices - 1)
+    return union
+
+
+def conservative_union(
+    engine: FRTEngine, pose: Pose, v_start: float, bounds: np.ndarray
+) -> UnionSet:
+    """The engine's conservative set of each row of ``bounds`` [M, 8], as one union: it contains
+    :func:`exact_union` of the same bounds, member by member."""
+    return UnionSet([engine.conservative(pose, v_start, b) for b in np.asarray(bounds)])

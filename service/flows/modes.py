@@ -1,0 +1,247 @@
+"""Multi-modal predictions: the joint belief over (mode, beta) and the modes the served set holds.
+
+A predictor such as Trajectron++ gives a mixture: mode m (weight w_m) is a Gaussian over the
+controls, N(mu_m, Sigma_m) per step. The belief is over pairs (m, beta_i) jointly:
+
+- the epsilon-static transition mixes it back towards the prior, the mode weights times the beta
+  prior: ``b_-(m, beta) = (1 - eps) b_+(m, beta) + eps w_m / n`` (paper, "Confidence estimation
+  and update", the transition after eq. ``beta``, with the prior over pairs);
+- Bayes' rule with the observed action's likelihood under that mode's tempered Gaussian,
+  ``b_+(m, beta) ∝ f(u; mu_m, Sigma_m / beta) b_-(m, beta)`` (paper, eq. ``predUpdate`` in eq.
+  ``beta``, the sum running over every pair). Inferring which intent (mode) the human follows
+  from their actions, jointly with how far to trust the model, is the goal/intent inference of
+  Fisac et al., "Probabilistically safe robot planning with confidence-based human predictions",
+  RSS 2018;
+- each mode's point estimate is its conditional mean ``beta_m = sum_i beta_i b(beta_i | m)``
+  (paper, the equation for beta^t, given the mode), and the agent's beta the marginal one.
+
+Unlike the single-Gaussian filter, the likelihood's normalising term ``-(1/2) log det Sigma_m``
+differs between modes, so it is kept; ``-(k/2) log 2 pi`` is shared by every pair and dropped.
+Everything is on log-probabilities, as in ``service.flows.confidence``.
+
+Modes are identified by their place in the list: the posterior of mode m carries over to mode m of
+the next prediction when it has as many modes; otherwise the mode belief restarts from the new
+weights, keeping the marginal belief over beta. With one mode the joint belief is the
+single-Gaussian filter's.
+
+The served set is the union of the per-mode tubes (``reach.union``), each from its mode's own
+bounds (its own beta), over the fewest most probable modes holding ``mode_mass`` of the posterior,
+plus every mode whose posterior exceeds ``mode_floor``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from service.flows.bounds import PredictionError, validate_prediction
+from service.flows.confidence import LOG_PROB_FLOOR, Belief, log_likelihoods
+
+#: Defaults of the per-agent ``mode_mass`` and ``mode_floor``.
+MODE_MASS = 0.99
+MODE_FLOOR = 1e-3
+
+
+def _logsumexp(a: np.ndarray, axis: int | None = None) -> np.ndarray:
+    top = np.max(a, axis=axis, keepdims=True)
+    out = top + np.log(np.sum(np.exp(a - top), axis=axis, keepdims=True))
+    return out.reshape(()) if axis is None else np.squeeze(out, axis=axis)
+
+
+def _normalised(log_probs: np.ndarray) -> np.ndarray:
+    lse = float(_logsumexp(log_probs))
+    if abs(lse) < 1e-13:
+        lse = 0.0
+    return np.maximum(log_probs - lse, LOG_PROB_FLOOR)
+
+
+def normalised_weights(weights: ArrayLike) -> np.ndarray:
+    """The mode weights divided by their sum (each must be positive and finite)."""
+    w = np.asarray(weights, dtype=np.float64)
+    if w.ndim != 1 or not w.size or not (np.isfinite(w).all() and (w > 0).all()):
+        raise ValueError("mode weights must be a non-empty list of positive finite numbers")
+    return w / w.sum()
+
+
+@dataclass(frozen=True, eq=False)
+class JointBelief:
+    """b(m, beta_i) as normalised log-probabilities ``log_probs`` [M, n], with the mode weights
+    ``weights`` [M] (normalised) the transition mixes back towards."""
+
+    betas: np.ndarray
+    weights: np.ndarray
+    log_probs: np.ndarray
+
+    def __post_init__(self) -> None:
+        betas = np.array(self.betas, dtype=np.float64)
+        weights = normalised_weights(self.weights)
+        log_probs = np.array(self.log_probs, dtype=np.float64)
+        if betas.ndim != 1 or betas.size < 2 or log_probs.shape != (weights.size, betas.size):
+            raise ValueError("log_probs must be [modes, hypotheses]")
+        if not (np.isfinite(betas).all() and (betas > 0).all() and (np.diff(betas) > 0).all()):
+            raise ValueError("betas must be positive, finite and strictly ascending")
+        if np.isnan(log_probs).any() or not np.isfinite(log_probs).any():
+            raise ValueError("log_probs must be numbers with at least one finite entry")
+        for name, value in (("betas", betas), ("weights", weights), ("log_probs", log_probs)):
+            if name == "log_probs":
+                value = _normalised(value)
+            value.flags.writeable = False
+            object.__setattr__(self, name, value)
+
+    @classmethod
+    def prior(cls, betas: ArrayLike, weights: ArrayLike) -> JointBelief:
+        """The prior b_-^0(m, beta_i) = w_m / n."""
+        betas = np.asarray(betas, dtype=np.float64)
+        w = normalised_weights(weights)
+        log_prior = np.log(w)[:, None] - math.log(betas.size) + np.zeros((1, betas.size))
+        return cls(betas, w, log_prior)
+
+    @classmethod
+    def from_beta_belief(cls, belief: Belief, weights: ArrayLike) -> JointBelief:
+        """Independent modes and beta: b(m, beta_i) = w_m b(beta_i)."""
+        w = normalised_weights(weights)
+        return cls(belief.betas, w, np.log(w)[:, None] + belief.log_probs[None, :])
+
+    def transition(self, epsilon: float) -> JointBelief:
+        """``b_- = (1 - eps) b_+ + eps w_m / n`` (identity for eps = 0)."""
+        if not (math.isfinite(epsilon) and 0.0 <= epsilon < 1.0):
+            raise ValueError(f"epsilon must lie in [0, 1), got {epsilon!r}")
+        if epsilon == 0.0:
+            return self
+        log_prior = np.log(self.weights)[:, None] - math.log(self.betas.size)
+        mixed = np.logaddexp(math.log1p(-epsilon) + self.log_probs, math.log(epsilon) + log_prior)
+        return JointBelief(self.betas, self.weights, mixed)
+
+    def update(
+        self, action: ArrayLike, means: ArrayLike, covs: ArrayLike, epsilon: float
+    ) -> JointBelief:
+        """One filter step: the transition, then Bayes' rule over every (mode, beta) pair with
+        ``f(u; mu_m, Sigma_m / beta_i)``; ``means`` [M, k], ``covs`` [M, k, k] (each positive
+        definite), one per mode."""
+        prior = self.transition(epsilon)
+        mu = np.asarray(means, dtype=np.float64)
+        sigma = np.asarray(covs, dtype=np.float64)
+        if mu.ndim != 2 or mu.shape[0] != self.weights.size or sigma.shape[0] != mu.shape[0]:
+            raise ValueError(f"need one mean and cov per mode: {mu.shape}, {sigma.shape}")
+        rows = []
+        for m in range(mu.shape[0]):
+            ll = log_likelihoods(prior.betas, action, mu[m], sigma[m])
+            _, log_det = np.linalg.slogdet(0.5 * (sigma[m] + sigma[m].T))
+            rows.append(ll - 0.5 * log_det)
+        return JointBelief(prior.betas, prior.weights, prior.log_probs + np.stack(rows))
+
+    @property
+    def probs(self) -> np.ndarray:
+        """b(m, beta_i) [M, n], summing to one."""
+        p = np.exp(self.log_probs - self.log_probs.max())
+        return p / p.sum()
+
+    @property
+    def mode_probs(self) -> np.ndarray:
+        """The mode posterior P(m) [M]."""
+        return self.probs.sum(axis=1)
+
+    @property
+    def mode_betas(self) -> np.ndarray:
+        """Each mode's point estimate E[beta | m] [M], inside [beta_low, 1]."""
+        conditional = np.exp(self.log_probs - _logsumexp(self.log_probs, axis=1)[:, None])
+        conditional /= conditional.sum(axis=1, keepdims=True)
+        return np.clip(conditional @ self.betas, self.betas[0], self.betas[-1])
+
+    def beta_belief(self) -> Belief:
+        """The marginal belief over beta."""
+        return Belief(betas=self.betas, log_probs=_logsumexp(self.log_probs, axis=0))
+
+    def for_prediction(self, weights: ArrayLike) -> JointBelief:
+        """The belief carried to a new prediction with ``weights``: the same posterior when it
+        has as many modes (mode m is mode m), else the marginal beta belief times the new
+        weights."""
+        w = normalised_weights(weights)
+        if w.size == self.weights.size:
+            return JointBelief(self.betas, w, self.log_probs)
+        return JointBelief.from_beta_belief(self.beta_belief(), w)
+
+    def regrid(self, betas: np.ndarray) -> JointBelief:
+        """The same weights on new hypotheses (a new beta_low), as ``service.flows.agents``
+        does for a single Gaussian."""
+        if np.array_equal(betas, self.betas):
+            return self
+        return JointBelief(betas, self.weights, self.log_probs)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "betas": self.betas.tolist(),
+            "weights": self.weights.tolist(),
+            "log_probs": self.log_probs.tolist(),
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> JointBelief:
+        return cls(
+            np.asarray(data["betas"]), np.asarray(data["weights"]), np.asarray(data["log_probs"])
+        )
+
+
+def select_modes(
+    posterior: ArrayLike, mode_mass: float = MODE_MASS, mode_floor: float = MODE_FLOOR
+) -> list[int]:
+    """The modes the served set holds, in index order: the fewest most probable ones whose
+    posterior adds up to ``mode_mass`` (ties by index), and every mode above ``mode_floor``.
+    The modes left out have posterior at most ``mode_floor`` each and less than
+    ``1 - mode_mass`` together (to float rounding)."""
+    p = np.asarray(posterior, dtype=np.float64)
+    if not (0.0 < mode_mass <= 1.0 and 0.0 <= mode_floor < 1.0):
+        raise ValueError("mode_mass must lie in (0, 1] and mode_floor in [0, 1)")
+    order = sorted(range(p.size), key=lambda m: (-p[m], m))
+    chosen: set[int] = set()
+    total = 0.0
+    for m in order:
+        if total >= mode_mass * (1.0 - 1e-12) * p.sum():
+            break
+        chosen.add(m)
+        total += p[m]
+    chosen.update(m for m in range(p.size) if p[m] > mode_floor)
+    return sorted(chosen)
+
+
+@dataclass(frozen=True)
+class Mixture:
+    """A validated multi-modal prediction: weights [M] (normalised), means [M, S, 2], covs
+    [M, S, 2, 2] (symmetrised)."""
+
+    dt: float
+    weights: np.ndarray
+    means: np.ndarray
+    covs: np.ndarray
+
+
+def validate_mixture(modes: list[Any], dt: Any, max_steps: int, max_modes: int) -> Mixture:
+    """Check a multi-modal prediction: at most ``max_modes`` modes, each a valid Gaussian
+    (``validate_prediction``) with as many steps as the first, weights positive and finite
+    (normalised here: they need not sum to one). Raises PredictionError naming the field
+    (``prediction.modes[32]`` for the first mode beyond the limit,
+    ``prediction.modes[m].cov[k]`` ...)."""
+    if len(modes) > max_modes:
+        raise PredictionError(f"prediction.modes[{max_modes}]", f"at most {max_modes} modes")
+    means, covs, weights = [], [], []
+    for m, mode in enumerate(modes):
+        field = f"prediction.modes[{m}]"
+        w = mode.weight
+        if not (isinstance(w, int | float) and math.isfinite(w) and w > 0):
+            raise PredictionError(f"{field}.weight", "must be a positive finite number")
+        try:
+            mean, cov = validate_prediction(mode.mean, mode.cov, dt, max_steps)
+        except PredictionError as exc:
+            raise PredictionError(exc.field.replace("prediction", field, 1), exc.message) from None
+        if means and mean.shape != means[0].shape:
+            raise PredictionError(
+                f"{field}.mean", f"has {len(mean)} steps but prediction.modes[0] {len(means[0])}"
+            )
+        means.append(mean)
+        covs.append(cov)
+        weights.append(float(w))
+    return Mixture(float(dt), normalised_weights(weights), np.stack(means), np.stack(covs))

@@ -151,7 +151,7 @@ class FRTEngine:
         )
 
     def conservative(self, pose: Pose, v_start: float, bounds: np.ndarray) -> BoxTubeSet:
-        """The outer bound as a set: contains the exact set; its boxes alone, ~1 ms here."""
+        """The outer bound as a set: contains the exact set; its boxes alone, cheap enough for the request's thread."""
         return self._box_tube(pose, self.outer(v_start, bounds, support_directions=0))
 
     def _box_tube(self, pose: Pose, ob: OuterBound) -> BoxTubeSet:

@@ -47,14 +47,11 @@ class NotchPartition:
 
 
 #: The notch cut's stages, coarse to fine: the service refines a set by each in turn, each landing
-#: as soon as it is done, so a planner gets the quick cut ~0.1 s after an observation and the fine
-#: one ~1.3 s after it if no newer observation has come first (``make bench``; a later stage is
-#: skipped when it would land after the next observation). The fine stage's waypoint bins pin
-#: the heading at a fifth and at half of the time (each split over the interval its bin leaves),
-#: where the notch's walls are made, and its 32 directions fit each bin's polygon closer: on the
-#: four settings with rows over 1.5 m (one-off runs of the evaluation with ``--only``), 4 x 2
-#: waypoint bins left none over (at most 1.37 m), 8 x 2 none (1.25 m) for twice the time, 8 bins
-#: split over the whole forward interval at a fifth of the time one (1.68 m); docs/model.md.
+#: as soon as it is done, the quick one well before the fine one (``make bench`` measures both); a
+#: later stage is skipped when it would land after the next observation. The fine stage's waypoint
+#: bins pin the heading at a fifth and at half of the time (each split over the interval its bin
+#: leaves), where the notch's walls are made, and its 32 directions fit each bin's polygon closer
+#: (docs/model.md compares the partitions tried).
 NOTCH_STAGES = (
     NotchPartition(32, waypoint_bins=(), waypoint_at=(), steps=90, n_directions=16),
     NotchPartition(

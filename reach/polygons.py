@@ -106,7 +106,7 @@ def convex_polygons(directions: np.ndarray, supports: np.ndarray) -> np.ndarray:
 
 def compile_polygon_kernel() -> None:
     """Compile (or load from numba's cache) :func:`half_plane_polygons`' kernel before a request
-    needs it: ~5 s the first time after a change, ~0.3 s from the cache."""
+    needs it (the first compilation after a change takes seconds)."""
     half_plane_polygons(np.arange(4) * (math.pi / 2), np.ones((1, 4)))
 
 

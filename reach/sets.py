@@ -161,7 +161,7 @@ class BoxTubeSet(FRTSet):
     def clearance(self, xy_world: np.ndarray, t_rel: np.ndarray | None = None) -> np.ndarray:
         """Distance to the union of boxes: exact outside; inside, minus the depth in the deepest
         single box, which is at most the depth in the union (the point is inside either way; the
-        union's polygon, 1-5 ms to build per version, stays out of collision checks)."""
+        union's polygon, costly to build per version, stays out of collision checks)."""
         xy = to_human_frame(np.asarray(xy_world, dtype=float).reshape(-1, 2), self.pose)
         b = self.boxes
         counted = None  # t_rel None: every box counts (the whole-horizon tube)

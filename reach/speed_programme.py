@@ -300,7 +300,7 @@ def corridor_gain(
 
 def compile_speed_programme() -> None:
     """Compile (or load from numba's cache) the dynamic programme before it is needed: a worker
-    process calls this at start-up, so no refinement waits for the compiler (~1.5 s here)."""
+    process calls this at start-up, so no refinement waits for the compiler."""
     one = np.zeros((1, 2))
     max_linear_over_profiles(one, one, one + 1.0, one[:, :1] + 1.0, one[:, :1] + 1.0)
     corridor_gain(one[:, :1], one[:, :1], np.zeros(1), np.ones(1), one, one + 1.0, -one[:, :1],

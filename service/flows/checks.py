@@ -136,7 +136,7 @@ async def answer_states(
     xy = np.array([[p.x, p.y] for p in request.trajectory], dtype=np.float64)
     times = np.array([p.t for p in request.trajectory], dtype=np.float64)
 
-    # Answered on the event loop: ~0.1 ms per agent, less than the thread hop and the GIL hand-offs
+    # Answered on the event loop: cheaper per agent than the thread hop and the GIL hand-offs
     # with the loop that answering in a worker thread cost.
     start = time.perf_counter()
     conservative = {i: services.conservative(jobs[i]) for i, frt in enumerate(exact) if frt is None}

@@ -139,8 +139,7 @@ def lower_priority(policy: str, nice: int) -> None:
 
     * ``"idle"`` (SCHED_IDLE): only when a CPU has nothing else to run. A CPU that runs only such
       workers counts as idle when the server wakes, so the server is placed there at once instead
-      of queueing beside another busy process (the sustained bench: 3 -> 1-2 checks late at the
-      server, 15 -> 5-9 late end to end, alternating runs).
+      of queueing beside another busy process (docs/performance.md measures the difference).
     * ``"batch"`` (SCHED_BATCH, plus ``nice``): a worker woken by a task does not preempt the
       server that sent it; it still counts as busy when the server wakes.
     """

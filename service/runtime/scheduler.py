@@ -52,8 +52,7 @@ class FRTKey:
 #: Sets kept per agent: its current version's and the one before (for a check that read the agent's
 #: state just before an update). Older versions are never asked for again (checks, contours and
 #: observations use the current state's), and a cache full of them only kept objects alive for the
-#: garbage collector to walk: ~60 polygons per exact set once its tubes are drawn, 80 000 objects
-#: and full collections of 25-35 ms under the load test.
+#: garbage collector to walk (tens of polygons per exact set once its tubes are drawn).
 VERSIONS_PER_AGENT = 2
 
 

@@ -200,7 +200,7 @@ class Services:
                 extra={"error": repr(exc)},
             )
             return False
-        # A worker's first result costs ~20-50 ms more than the next ones (the first pickling there
+        # A worker's first result costs more than the next ones (the first pickling there
         # and unpickling here): one per worker before any request.
         with contextlib.suppress(Exception):
             for warm in [pool.submit(timed, warm_up_task(engine)) for _ in range(workers)]:
@@ -302,8 +302,8 @@ class Services:
         return exact.notch_stage
 
     def conservative(self, job: FRTJob) -> FRTSet:
-        """The engine's fast set that contains the exact one (boxes only, ~1 ms here: built on
-        the caller's thread, less than a round trip to a worker process would cost).
+        """The engine's fast set that contains the exact one (boxes only, built on the caller's
+        thread: less than a round trip to a worker process would cost).
 
         Cached per key: each observation builds its version's set, so a planner's check of 50
         agents whose exact sets are late looks them up instead of building 50 within its deadline.

@@ -57,7 +57,7 @@ class Settings(BaseSettings):
     #: Refine exact sets whose heading interval passes +-pi/2 (the car may turn round): once the
     #: uncut set is ready (observation -> ready unchanged), a worker with nothing else to do cuts
     #: it to the speed-coupled partition (``reach.engine.NotchCut``) and the cut set replaces it,
-    #: in two stages (``NOTCH_STAGES``: ~0.1 s, then 1-1.5 s if the version should still be current).
+    #: in two stages (``NOTCH_STAGES``: quick, then fine if the version should still be current).
     #: Tighter, still sound sets behind such cars for a worker's spare time. Only with worker
     #: processes (``frt_executor``): on threads it would hold the event loop's GIL.
     frt_notch_cut: bool = NOTCH_CUT_BY_DEFAULT

@@ -51,7 +51,7 @@ class AgentState:
     modes: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        """A deep copy in JSON types (what the Redis store writes): ~6x faster than
+        """A deep copy in JSON types (what the Redis store writes): faster than
         ``dataclasses.asdict``, which inspects every number of the prediction."""
         return {name: _json_copy(getattr(self, name)) for name in _STATE_FIELDS}
 
@@ -135,7 +135,7 @@ class AgentStore(Protocol):
 
 @dataclass
 class _Entry:
-    #: The state, pickled: every read unpickles a fresh deep copy (~2.5x faster than
+    #: The state, pickled: every read unpickles a fresh deep copy (faster than
     #: ``from_dict(to_dict())``, which a planner's check of 50 agents paid 50 times), and nothing a
     #: caller does to a state it was given can reach the stored one.
     data: bytes

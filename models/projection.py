@@ -128,7 +128,7 @@ def reachable_xy(
     rollouts each, so rows come in blocks that share (setting, time). With ``edge`` the rollouts
     follow the evaluation's schedules (extremal ones included, half started on the initial set's
     edge), which calibration needs; without, the switching schedules the shipped projection graph
-    was distilled on (re-distilling on the edge mix was tried: its level's tail grew, 0.197).
+    is distilled on.
     """
     block = max(per_setting // times_per_setting, 1)
     params = np.repeat(sample_parameters(n_settings, rng), times_per_setting * block, axis=0)
@@ -411,8 +411,8 @@ def calibrated_levels(
     seen, and the pair with the smallest mean level over the samples is kept (``affine_level``).
     With N independent samples (and k candidates), a reachable point drawn from the same
     distribution is inside with probability >= 1 - eps with confidence 1 - k (1 - eps)^N (a union
-    bound over the candidates); a guarantee over the sampling distribution, not per setting (a
-    table per (time, size) cell was tried and under-approximated one growing-bounds setting).
+    bound over the candidates); a guarantee over the sampling distribution, not per setting, which
+    is why one level serves every (time, size) cell.
     """
     scale = set_scales(engine, reach)
     ratio = w / scale
@@ -525,8 +525,8 @@ def main() -> None:
         polar=args.polar,
     )
     # Calibrate the level on fresh reachable points of the true dynamics (scenario optimisation).
-    # One level for all settings: a table per (time, size) cell was tried and under-approximated a
-    # growing-bounds setting (its guarantee is over the sampling distribution, not per setting).
+    # One level for all settings: its guarantee is over the sampling distribution, not per
+    # setting, so a finer table of levels would claim more than it holds.
     reach = reachable_xy(args.calibration_settings, 64, CALIBRATION_SLICE_DT, rng)
     reach = reach.astype(np.float32)
     with torch.no_grad():

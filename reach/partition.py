@@ -209,8 +209,7 @@ def partition_supports(
     turn, by the heading at the sub-interval node nearest that fraction: evenly over the interval
     that node's heading lies in *for that bin's trajectories* (``_Corridors.heading_nodes``: the
     final heading bin and the waypoints before it narrow it), which covers them, so no split is
-    spent where the bin cannot go (splitting the whole forward interval left a sixth of the bins
-    empty and `fast_wide_limits` t = 2 s at 1.82 against 1.68 m, one-off, 32 x 8 bins).
+    spent where the bin cannot go (a split of the whole forward interval leaves bins empty).
     ``coupled_speed``: see ``_Corridors.supports`` (a linear programme per bin and direction).
     """
     times = np.asarray(times, dtype=float)

@@ -263,7 +263,8 @@ def figure_speeds(
         ax.set_ylim(-80, 30)
         ax.set_xlabel("time (s)")
         ax.set_ylabel("ego front past its stop line (m)")
-        ax.set_title(f"{sc.title}: the ego's front (dot: detection, x: collision)")
+        predictor = " (bimodal predictor)" if name.endswith("_bimodal") else ""
+        ax.set_title(f"{sc.title}{predictor}: the ego's front (dot: detection, x: collision)")
         ax.legend(fontsize=8)
         ax.grid(alpha=0.3)
     fig.tight_layout()

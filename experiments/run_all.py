@@ -24,7 +24,7 @@ from typing import Any
 
 from experiments import av2, plots, sweeps, timing
 from experiments.predictor import Observation
-from experiments.run_scenarios import predictor_for, run_all_scenes, save_runs
+from experiments.run_scenarios import RUN_SCENES, predictor_for, run_all_scenes, save_runs
 from experiments.run_scenarios import table as scenario_table
 from experiments.scenes import scene
 from experiments.server import DEFAULT_MODEL, ROOT, connect
@@ -147,7 +147,8 @@ def main(argv: list[str] | None = None) -> None:
         )
     figures.append(plots.figure_beta(traces, scenes, out / "beta_low.png"))
     figures.append(plots.figure_gamma(gamma_sets, scenes["uturn"], state, out / "gamma.png"))
-    figures.append(plots.figure_speeds(runs, scenes, out / "ego_motion.png"))
+    run_scenes = {name: scene(RUN_SCENES[name]) for name in runs}
+    figures.append(plots.figure_speeds(runs, run_scenes, out / "ego_motion.png"))
     if not args.skip_av2:
         figures.append(plots.figure_av2(result, av2.lane_map(), av2.ATTRIBUTION, out / "av2.png"))
     args.docs.mkdir(parents=True, exist_ok=True)

@@ -295,6 +295,10 @@ def bimodal_predictor(sc: Scene) -> BimodalPredictor:
     return BimodalPredictor(predictor_for(sc), turn_radius_m=radius, w_straight=0.9)
 
 
+#: The scene each run of :func:`run_all_scenes` plays.
+RUN_SCENES = {"uturn": "uturn", "uturn_bimodal": "uturn", "stop_sign": "stop_sign"}
+
+
 def run_all_scenes(client: Any, **kwargs: Any) -> dict[str, dict[str, ScenarioRun]]:
     """Both scenes, confidence on and off: ``{scene: {"on": run, "off": run}}``; and the U-turn
     with the bimodal stand-in predictor (``uturn_bimodal``)."""

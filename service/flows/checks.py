@@ -14,6 +14,7 @@ import asyncio
 import logging
 import time
 from collections.abc import Sequence
+from dataclasses import dataclass
 from functools import lru_cache
 from typing import Any
 
@@ -34,7 +35,7 @@ from service.flows.agents import effective_config
 from service.flows.batch import box_clearances, tube_clearances
 from service.flows.confidence import Belief
 from service.flows.tube_builder import within_built_tubes
-from service.runtime.services import Services
+from service.runtime.services import FRTJob, Services
 from service.runtime.settings import Settings
 from service.runtime.store import AgentState
 
@@ -103,21 +104,107 @@ def wait_budget_s(arrival: float, deadline_ms: float, settings: Settings) -> flo
     return min(until_reserve, settings.deadline_wait_fraction * deadline_s - elapsed)
 
 
+@dataclass
+class _Timeline:
+    """When each phase of one check ended (``time.perf_counter()``), for the late-answer log."""
+
+    arrival: float
+    entered: float
+    waited: float = 0.0
+    boxes_done: float = 0.0
+    sets_done: float = 0.0
+    done: float = 0.0
+
+    def phases_ms(self) -> dict[str, float]:
+        """Where the time went: before this module ran (parsing, the event loop busy with other
+        work), waiting for exact sets, then each answering phase."""
+        marks = (
+            self.arrival,
+            self.entered,
+            self.waited,
+            self.boxes_done,
+            self.sets_done,
+            self.done,
+        )
+        names = ("before_ms", "wait_ms", "boxes_ms", "sets_ms", "response_ms")
+        return {
+            n: round((b - a) * 1e3, 3) for n, a, b in zip(names, marks[:-1], marks[1:], strict=True)
+        }
+
+
 async def answer_states(
     services: Services,
     states: Sequence[AgentState],
     request: CollisionCheckRequest,
     arrival: float,
 ) -> list[CollisionCheckResponse]:
-    settings = services.settings
+    """Answer one check of ``states`` in phases: wait for the exact sets that may make it, measure
+    the conservative sets of the rest, measure the exact sets (drawing the tubes a time-indexed
+    check needs while its budget allows), respond."""
     services.require_engine()
-    entered = time.perf_counter()
-    deadline_ms = request.deadline_ms or settings.deadline_ms
-    jobs = [services.job_for(state) for state in states]
+    timeline = _Timeline(arrival, time.perf_counter())
+    deadline_ms = request.deadline_ms or services.settings.deadline_ms
     costs = services.answer_costs
-    # Keep time to answer every agent once the wait is over: a planner's check of 50 agents takes
-    # milliseconds to answer, which a wait up to half the deadline would push past it.
-    budget = wait_budget_s(arrival, deadline_ms, settings) - costs.upper_s(len(states), 0)
+    jobs = [services.job_for(state) for state in states]
+    exact = await _exact_sets_in_time(services, jobs, arrival, deadline_ms)
+    not_ready = sum(frt is None for frt in exact)
+    found = list(exact)
+    no_time = _answer_in_time(services, exact, arrival, deadline_ms)
+    xy = np.array([[p.x, p.y] for p in request.trajectory], dtype=np.float64)
+    times = np.array([p.t for p in request.trajectory], dtype=np.float64)
+    t_rel = [times - s.timestamp if request.mode == "time_indexed" else None for s in states]
+    # Answered on the event loop: cheaper per agent than the thread hop and the GIL hand-offs
+    # with the loop that answering in a worker thread cost.
+    timeline.waited = time.perf_counter()
+    chosen, distances = _conservative_distances(services, jobs, exact, xy, t_rel)
+    timeline.boxes_done = time.perf_counter()
+    costs.conservative.record(timeline.boxes_done - timeline.waited, len(distances))
+    _note_tube_demand(services, states, chosen, t_rel)
+    pending = [i for i in chosen if i not in distances]
+    drawn_before = services.tubes.spent_s
+    coarse = _exact_distances(
+        services, chosen, pending, distances, xy, t_rel, (arrival, deadline_ms, len(states))
+    )
+    timeline.sets_done = time.perf_counter()
+    # Tubes drawn for this check are budgeted on their own (TubeBuilder.cost).
+    drawing = services.tubes.spent_s - drawn_before
+    costs.exact.record(timeline.sets_done - timeline.boxes_done - drawing, len(pending))
+    results = _respond_all(services, states, exact, request, times, distances, coarse)
+    reasons = services.metrics.conservative_reasons
+    for reason, count in (("not_ready", not_ready), ("no_time", no_time), ("tubes", len(coarse))):
+        if count:
+            reasons.labels(reason).inc(count)
+    timeline.done = time.perf_counter()
+    costs.response.record(timeline.done - timeline.sets_done, len(states))
+    if no_time and not any(frt is not None for frt in exact):
+        skipped = next(i for i, frt in enumerate(found) if frt is not None)
+        asyncio.get_running_loop().call_soon(
+            _measure_exact_answer, services, found[skipped], xy, t_rel[skipped]
+        )
+    if timeline.done - arrival > deadline_ms / 1000.0:
+        services.metrics.deadline_misses.inc()
+        log.warning(
+            "collision check answered after its deadline",
+            extra={
+                "deadline_ms": deadline_ms,
+                "elapsed_ms": round((timeline.done - arrival) * 1e3, 3),
+                **timeline.phases_ms(),
+                "agents": len(states),
+                "not_ready": not_ready,
+                "no_time": no_time,
+            },
+        )
+    return results
+
+
+async def _exact_sets_in_time(
+    services: Services, jobs: list[FRTJob], arrival: float, deadline_ms: float
+) -> list[FRTSet | None]:
+    """Each job's exact set if it is cached or lands within the wait budget, else None. The
+    budget keeps time to answer every agent once the wait is over: a planner's check of 50 agents
+    takes milliseconds to answer, which a wait up to half the deadline would push past it."""
+    budget = wait_budget_s(arrival, deadline_ms, services.settings)
+    budget -= services.answer_costs.upper_s(len(jobs), 0)
     # Cached sets first, without a task each (a planner's check of 50 agents mostly finds them).
     exact = services.cached_exact(jobs)
     late = [i for i, frt in enumerate(exact) if frt is None]
@@ -129,89 +216,57 @@ async def answer_states(
     for i, future in waiting.items():
         if future.done() and not future.cancelled() and future.exception() is None:
             exact[i] = future.result()
-    not_ready = sum(frt is None for frt in exact)
-    found = list(exact)
-    no_time = _answer_in_time(services, exact, arrival, deadline_ms)
+    return exact
 
-    xy = np.array([[p.x, p.y] for p in request.trajectory], dtype=np.float64)
-    times = np.array([p.t for p in request.trajectory], dtype=np.float64)
 
-    # Answered on the event loop: cheaper per agent than the thread hop and the GIL hand-offs
-    # with the loop that answering in a worker thread cost.
-    start = time.perf_counter()
+def _conservative_distances(
+    services: Services,
+    jobs: list[FRTJob],
+    exact: list[FRTSet | None],
+    xy: np.ndarray,
+    t_rel: list[np.ndarray | None],
+) -> tuple[dict[int, FRTSet], dict[int, np.ndarray]]:
+    """The set each agent is answered from (its exact set, else its conservative one), and the
+    clearances of the agents answered from box sets, all in one numpy pass."""
     conservative = {i: services.conservative(jobs[i]) for i, frt in enumerate(exact) if frt is None}
     boxes = {i: s for i, s in conservative.items() if isinstance(s, BoxTubeSet)}
-    origins = [state.timestamp if request.mode == "time_indexed" else None for state in states]
-
-    def t_rel(i: int) -> np.ndarray | None:
-        origin = origins[i]
-        return None if origin is None else times - origin
-
-    distances: dict[int, np.ndarray] = dict(
-        zip(
-            boxes,
-            box_clearances(list(boxes.values()), xy, [t_rel(i) for i in boxes]),
-            strict=True,
-        )
-    )
-    boxes_done = time.perf_counter()
-    costs.conservative.record(boxes_done - start, len(boxes))
+    measured = box_clearances(list(boxes.values()), xy, [t_rel[i] for i in boxes])
+    distances = dict(zip(boxes, measured, strict=True))
     chosen = {i: frt if frt is not None else conservative[i] for i, frt in enumerate(exact)}
-    _note_tube_demand(services, states, chosen, [t_rel(i) for i in range(len(states))])
-    # The exact sets (FRTSet.clearance) together, in one vectorised call each; any other kind alone.
-    pending = [i for i in chosen if i not in distances]
+    return chosen, distances
+
+
+def _exact_distances(
+    services: Services,
+    chosen: dict[int, FRTSet],
+    pending: list[int],
+    distances: dict[int, np.ndarray],
+    xy: np.ndarray,
+    t_rel: list[np.ndarray | None],
+    check: tuple[float, float, int],
+) -> set[int]:
+    """Clearances of the ``pending`` agents into ``distances``: the sets that measure against
+    their tubes (``FRTSet.clearance``) together, in one vectorised call, any other kind alone.
+    ``check`` is (arrival, deadline_ms, number of agents). Returns the agents answered against
+    tubes already drawn that end later than theirs (conservatively)."""
+    arrival, deadline_ms, n_agents = check
+    costs = services.answer_costs
     plain = [i for i in pending if chosen[i].clearance_from_tubes]
-    rest = [i for i in pending if not chosen[i].clearance_from_tubes]
-    plain_times = {i: t_rel(i) for i in plain}
-    drawn_before = services.tubes.spent_s
+    plain_times = {i: t_rel[i] for i in plain}
     coarse = _fit_tubes_to_deadline(
         services,
         {i: chosen[i] for i in plain},
         plain_times,
         arrival,
         deadline_ms,
-        costs.exact.upper_s(len(pending)) + costs.response.upper_s(len(states)),
+        costs.exact.upper_s(len(pending)) + costs.response.upper_s(n_agents),
     )
     together = tube_clearances([chosen[i] for i in plain], xy, [plain_times[i] for i in plain])
     distances.update(zip(plain, together, strict=True))
-    for i in rest:
-        distances[i] = chosen[i].clearance(xy, t_rel(i))
-    # Tubes drawn for this check are budgeted on their own (TubeBuilder.cost).
-    drawing = services.tubes.spent_s - drawn_before
-    sets_done = time.perf_counter()
-    costs.exact.record(sets_done - boxes_done - drawing, len(pending))
-    results = _respond_all(services, states, exact, request, times, distances, coarse)
-    reasons = services.metrics.conservative_reasons
-    for reason, count in (("not_ready", not_ready), ("no_time", no_time), ("tubes", len(coarse))):
-        if count:
-            reasons.labels(reason).inc(count)
-    done = time.perf_counter()
-    costs.response.record(done - sets_done, len(states))
-    if no_time and not any(frt is not None for frt in exact):
-        skipped = next(i for i, frt in enumerate(found) if frt is not None)
-        asyncio.get_running_loop().call_soon(
-            _measure_exact_answer, services, found[skipped], xy, t_rel(skipped)
-        )
-    if done - arrival > deadline_ms / 1000.0:
-        services.metrics.deadline_misses.inc()
-        log.warning(
-            "collision check answered after its deadline",
-            extra={
-                "deadline_ms": deadline_ms,
-                "elapsed_ms": round((done - arrival) * 1e3, 3),
-                # Where the time went: before this function ran (parsing, the event loop busy
-                # with other work), waiting for exact sets, then each answering phase.
-                "before_ms": round((entered - arrival) * 1e3, 3),
-                "wait_ms": round((start - entered) * 1e3, 3),
-                "boxes_ms": round((boxes_done - start) * 1e3, 3),
-                "sets_ms": round((sets_done - boxes_done) * 1e3, 3),
-                "response_ms": round((done - sets_done) * 1e3, 3),
-                "agents": len(states),
-                "not_ready": not_ready,
-                "no_time": no_time,
-            },
-        )
-    return results
+    for i in pending:
+        if i not in distances:
+            distances[i] = chosen[i].clearance(xy, t_rel[i])
+    return coarse
 
 
 def _note_tube_demand(

@@ -17,7 +17,8 @@ from pathlib import Path
 
 import pytest
 
-from experiments.run_scenarios import BETA_LOW, run_scenario
+from experiments import plots
+from experiments.run_scenarios import BETA_LOW, RUN_SCENES, bimodal_predictor, run_scenario
 from experiments.scenes import scene
 from experiments.server import connect
 
@@ -76,3 +77,29 @@ def test_case_study_outcome(service: tuple[object, bool], name: str) -> None:
     )
     # Deterministic (simulated clock, exact sets only): no tolerance for a missing crash.
     assert off.collision, off.summary()
+
+
+def test_the_bimodal_uturn_is_caught_by_its_mode_posterior(
+    service: tuple[object, bool], tmp_path: Path
+) -> None:
+    """Straight 0.9, U-turn 0.1, confidence off: while the human waits, its actions leave the
+    U-turn mode below the floor; its first U-turn action lifts that mode's posterior over the
+    straight one's, and (shipped model) the ego then stops before its line without confidence."""
+    client, shipped = service
+    sc = scene("uturn")
+    run = run_scenario(client, sc, False, predictor=bimodal_predictor(sc), keep_contours=False)
+    assert run.conservative_answers == 0
+    waiting = [s.mode_posteriors for s in run.steps if 0.0 < s.t < sc.driver.start_s]
+    turning = [s.mode_posteriors for s in run.steps if s.t > sc.driver.start_s]
+    assert waiting and all(p is not None and p[1] < 1e-2 for p in waiting), waiting
+    assert turning and turning[0] is not None and turning[0][1] > 0.5, turning[:2]
+    assert min(s.beta for s in run.steps) > 0.999  # the mode, not the confidence, did it
+    figure = plots.figure_speeds(
+        {"uturn_bimodal": {"on": run, "off": run}},
+        {"uturn_bimodal": scene(RUN_SCENES["uturn_bimodal"])},
+        tmp_path / "speeds.png",
+    )
+    assert figure.stat().st_size > 0
+    if shipped:
+        assert run.detection is not None and run.detection.can_stop_before_line, run.summary()
+        assert not run.collision, run.summary()

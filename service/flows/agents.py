@@ -4,6 +4,10 @@ One observation: validate -> score the observed action against the first step of
 prediction (epsilon-static transition, then Bayes) -> beta -> control bounds of the new prediction ->
 check them against the model's trained ranges -> store the new state atomically with the timestamp
 check -> start the exact FRT of the new version in the background and answer at once.
+
+Before the new state is built, the observed position is audited against the agent's earlier sets
+(``service.flows.audit``); the counts go into the new state, and with ``coverage_target`` the
+misses move the gamma the new version's bounds are fitted with (``service.flows.adaptive_gamma``).
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ from service.api.limits import check_prediction_steps
 from service.api.schemas import (
     MAX_MODES,
     AgentResponse,
+    AuditOut,
     BeliefOut,
     ControlBoundsOut,
     DeleteResponse,
@@ -26,6 +31,8 @@ from service.api.schemas import (
     ObservationResponse,
     Prediction,
 )
+from service.flows.adaptive_gamma import next_state, served_gamma
+from service.flows.audit import Scored, ServedVersion, fold, score
 from service.flows.bounds import PredictionError, control_bounds, validate_prediction
 from service.flows.confidence import Belief, hypotheses, prior_belief, update_belief
 from service.flows.mode_states import (
@@ -40,7 +47,15 @@ from service.runtime.services import Services
 from service.runtime.settings import Settings
 from service.runtime.store import AgentState
 
-CONFIG_KEYS = ("beta_low", "gamma", "epsilon", "collision_radius", "bounds_fit")
+CONFIG_KEYS = (
+    "beta_low",
+    "gamma",
+    "epsilon",
+    "collision_radius",
+    "bounds_fit",
+    "coverage_target",
+    "coverage_step",
+)
 
 
 def effective_config(settings: Settings, overrides: dict[str, Any]) -> dict[str, Any]:
@@ -137,12 +152,14 @@ async def observe(
     previous = await services.store.get(agent_id)
     if previous is not None and request.timestamp <= previous.timestamp:
         raise StaleTimestampError(agent_id, request.timestamp, previous.timestamp)
+    scored = audit_position(services, agent_id, request, previous)
     built: list[Belief] = []  # the belief of each state built, the last one last
 
     def build(prior: AgentState | None, mean: np.ndarray, cov: np.ndarray) -> AgentState:
         overrides = {**(prior.config if prior else {}), **patch}
         klass = resolve_class(agent_id, request.agent_class, prior, overrides)
         config = effective_config(settings, overrides)
+        audit = audited(prior, scored, request.timestamp, config) if settings.audit else None
         if mixture is not None or (prior is not None and prior.modes is not None):
             state, marginal = build_mode_state(
                 agent_id,
@@ -155,6 +172,7 @@ async def observe(
                 settings,
                 engine,
             )
+            state.audit = audit
             built.append(marginal)
             return state
         belief = _belief(prior, config["beta_low"])
@@ -192,6 +210,7 @@ async def observe(
             control_bounds=[float(b) for b in bounds],
             config=overrides,
             frt_version=(prior.frt_version + 1) if prior else 1,
+            audit=audit,
         )
 
     def first_try() -> tuple[np.ndarray, np.ndarray, AgentState]:
@@ -211,7 +230,23 @@ async def observe(
     state = await services.store.update(agent_id, apply, timestamp=request.timestamp)
     job = services.job_for(state)
     services.submit(job)
-    services.conservative(job)  # built now, so that checks finding the exact set late look it up
+    # Built now, so that checks finding the exact set late look it up; the audit keeps it.
+    conservative = services.conservative(job)
+    if settings.audit:
+        config = state.config
+        services.audit.record(
+            agent_id,
+            ServedVersion(
+                version=state.frt_version,
+                key=job.key,
+                t0=state.timestamp,
+                horizon_end=state.timestamp + services.horizon_s(),
+                collision_radius=float(config.get("collision_radius") or settings.collision_radius),
+                agent_class=str(config.get("agent_class", "car")),
+                conservative=conservative,
+            ),
+        )
+        services.count_audit(scored)
     if wait_frt_s > 0:
         await services.exact_within(job, wait_frt_s)
     # The belief just built, unless the stored one is another (from_dict would give the same arrays:
@@ -231,6 +266,67 @@ async def observe(
         modes=modes_out(state.modes),
         mode_mass=state.modes["mode_mass"] if state.modes else None,
     )
+
+
+def audit_position(
+    services: Services, agent_id: str, request: ObservationRequest, previous: AgentState | None
+) -> list[Scored]:
+    """The observed position scored against the agent's earlier versions whose horizon covers
+    its time (``service.flows.audit``); none for a new agent (or with the audit off)."""
+    if not services.settings.audit:
+        return []
+    if previous is None:
+        services.audit.forget(agent_id)  # versions of an earlier life of this id
+        return []
+    versions = services.audit.covering(agent_id, request.timestamp)
+    if not versions:
+        return []
+    state = request.state
+    return score(state.x, state.y, request.timestamp, versions, services.scheduler.lookup)
+
+
+def audited(
+    prior: AgentState | None, scored: list[Scored], t: float, config: dict[str, Any]
+) -> dict[str, Any]:
+    """The agent's audit counts after ``scored``; with ``coverage_target`` the adaptive rule's
+    next state, and ``config["gamma"]`` (in place) the gamma the new version is built with."""
+    audit = fold(prior.audit if prior else None, scored, t)
+    target = config.get("coverage_target")
+    if target is None:
+        audit["gamma_state"] = None
+        return audit
+    g = audit.get("gamma_state")
+    missed = sum(not s.in_c for s in scored)
+    g = next_state(
+        config["gamma"] if g is None else g, len(scored), missed, target, config["coverage_step"]
+    )
+    audit["gamma_state"] = g
+    config["gamma"] = served_gamma(g)
+    return audit
+
+
+def audit_out(audit: dict[str, Any] | None) -> AuditOut:
+    """The ``audit`` of the agent's view (zeros before any audit)."""
+    audit = audit or {}
+    n = int(audit.get("audited", 0))
+    return AuditOut(
+        audited=n,
+        missed_k=int(audit.get("missed_k", 0)),
+        missed_c=int(audit.get("missed_c", 0)),
+        exact=int(audit.get("exact", 0)),
+        coverage_k=1.0 - audit["missed_k"] / n if n else None,
+        coverage_c=1.0 - audit["missed_c"] / n if n else None,
+        last_miss=audit.get("last_miss"),
+        gamma_state=audit.get("gamma_state"),
+    )
+
+
+def gamma_effective(config: dict[str, Any], audit: dict[str, Any] | None) -> float:
+    """The gamma the agent's current version is built with."""
+    g = audit.get("gamma_state") if audit else None
+    if config.get("coverage_target") is None or g is None:
+        return float(config["gamma"])
+    return served_gamma(g)
 
 
 def _prediction_form(
@@ -308,6 +404,8 @@ async def get_agent(services: Services, agent_id: str, wait_frt_s: float = 0.0) 
         agent_class=state.config.get("agent_class", "car"),
         modes=modes_out(state.modes),
         mode_mass=state.modes["mode_mass"] if state.modes else None,
+        gamma_effective=gamma_effective(config, state.audit),
+        audit=audit_out(state.audit) if services.settings.audit else None,
     )
 
 

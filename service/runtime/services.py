@@ -32,6 +32,7 @@ from reach.sets import FRTSet
 from reach.union import conservative_union
 from service.api.errors import ServiceUnavailableError
 from service.api.schemas import ActiveParts, NetworkPart
+from service.flows.audit import AuditLedger, RollingCoverage, Scored
 from service.flows.mode_states import set_bounds
 from service.flows.tube_builder import TubeBuilder
 from service.runtime.answer_cost import AnswerCosts
@@ -108,6 +109,9 @@ class Services:
     #: Whether worker processes draw the tubes checks ask for before sending a set back
     #: (``Settings.frt_draw_tubes`` and worker processes running).
     _tubes_in_workers: bool = field(default=False, repr=False)
+    #: The coverage audit: each agent's recent versions, and the fleet's rolling coverage.
+    audit: AuditLedger = field(default_factory=lambda: AuditLedger(32, 10_000), repr=False)
+    coverage: RollingCoverage = field(default_factory=lambda: RollingCoverage(1000), repr=False)
 
     @classmethod
     def build(cls, settings: Settings) -> Services:
@@ -125,6 +129,8 @@ class Services:
             scheduler=scheduler,
             conservative_cache=LRUCache(settings.frt_cache_size),
             tubes=TubeBuilder(on_drawn=metrics.event_loop_tubes.inc),
+            audit=AuditLedger(settings.audit_max_versions, settings.max_agents),
+            coverage=RollingCoverage(settings.audit_window),
         )
 
     # ------------------------------------------------------------------ lifecycle
@@ -241,6 +247,27 @@ class Services:
         self.scheduler.forget(agent_id)
         self.conservative_cache.forget(agent_id)
         self.tube_demand.forget(agent_id)
+        self.audit.forget(agent_id)
+
+    def count_audit(self, scored: Sequence[Scored]) -> None:
+        """Export audited positions (``frt_audit_*``): one counter update per label set."""
+        if not scored:
+            return
+        metrics = self.metrics
+        groups: dict[tuple[str, str], list[Scored]] = {}
+        for s in scored:
+            groups.setdefault((s.agent_class, s.source), []).append(s)
+        for (klass, source), members in groups.items():
+            metrics.audit_positions.labels(klass, source).inc(len(members))
+            for part, missed in (
+                ("K", sum(not s.in_k for s in members)),
+                ("C", sum(not s.in_c for s in members)),
+            ):
+                if missed:
+                    metrics.audit_misses.labels(part, klass, source).inc(missed)
+        in_k, in_c = self.coverage.add(scored)
+        metrics.audit_coverage.labels("K").set(in_k)
+        metrics.audit_coverage.labels("C").set(in_c)
 
     def submit(self, job: FRTJob) -> None:
         """Start computing the exact set of ``job`` in the background."""

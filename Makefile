@@ -94,6 +94,10 @@ bench-sustained: $(STAMP)
 	$(BIN)/python scripts/bench.py --model $(MODEL) --sustained-only --sustained-runs 5 \
 		--out results/bench_sustained_runs.json
 
+# The coverage audit's cost on the observation: audit on and off side by side (results/bench_audit.json).
+bench-audit: $(STAMP)
+	$(BIN)/python scripts/bench.py --model $(MODEL) --audit-only
+
 load: $(STAMP)
 	$(BIN)/python scripts/load.py --url $(URL) --duration $(DURATION)
 

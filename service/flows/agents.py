@@ -5,13 +5,14 @@ prediction (epsilon-static transition, then Bayes) -> beta -> control bounds of 
 check them against the model's trained ranges -> store the new state atomically with the timestamp
 check -> start the exact FRT of the new version in the background and answer at once.
 
-Before the new state is built, the observed position is audited against the agent's earlier sets
-(``service.flows.audit``); the counts go into the new state, and with ``coverage_target`` the
+The observed position is audited against the agent's earlier sets (``service.flows.audit``) after
+the answer is sent; for an agent with ``coverage_target``, before its new state is built, since the
 misses move the gamma the new version's bounds are fitted with (``service.flows.adaptive_gamma``).
 """
 
 from __future__ import annotations
 
+import asyncio
 from typing import Any
 
 import numpy as np
@@ -32,7 +33,7 @@ from service.api.schemas import (
     Prediction,
 )
 from service.flows.adaptive_gamma import next_state, served_gamma
-from service.flows.audit import Scored, ServedVersion, fold, score
+from service.flows.audit import Scored, ServedVersion, score
 from service.flows.bounds import PredictionError, control_bounds, validate_prediction
 from service.flows.confidence import Belief, hypotheses, prior_belief, update_belief
 from service.flows.mode_states import (
@@ -152,14 +153,18 @@ async def observe(
     previous = await services.store.get(agent_id)
     if previous is not None and request.timestamp <= previous.timestamp:
         raise StaleTimestampError(agent_id, request.timestamp, previous.timestamp)
-    scored = audit_position(services, agent_id, request, previous)
+    if previous is None:
+        services.audit.forget(agent_id)  # versions of an earlier life of this id
+    # Scored now only where the new bounds depend on it (adaptive gamma); else after the answer.
+    adaptive = settings.audit and _coverage_target(settings, previous, patch) is not None
+    scored = audit_position(services, agent_id, request, previous) if adaptive else None
     built: list[Belief] = []  # the belief of each state built, the last one last
 
     def build(prior: AgentState | None, mean: np.ndarray, cov: np.ndarray) -> AgentState:
         overrides = {**(prior.config if prior else {}), **patch}
         klass = resolve_class(agent_id, request.agent_class, prior, overrides)
         config = effective_config(settings, overrides)
-        audit = audited(prior, scored, request.timestamp, config) if settings.audit else None
+        gamma_state = adapt_gamma(prior, scored, config) if scored is not None else None
         if mixture is not None or (prior is not None and prior.modes is not None):
             state, marginal = build_mode_state(
                 agent_id,
@@ -172,7 +177,7 @@ async def observe(
                 settings,
                 engine,
             )
-            state.audit = audit
+            state.gamma_state = gamma_state
             built.append(marginal)
             return state
         belief = _belief(prior, config["beta_low"])
@@ -210,7 +215,7 @@ async def observe(
             control_bounds=[float(b) for b in bounds],
             config=overrides,
             frt_version=(prior.frt_version + 1) if prior else 1,
-            audit=audit,
+            gamma_state=gamma_state,
         )
 
     def first_try() -> tuple[np.ndarray, np.ndarray, AgentState]:
@@ -246,7 +251,13 @@ async def observe(
                 conservative=conservative,
             ),
         )
-        services.count_audit(scored)
+        if scored is None:
+            state_in = request.state
+            asyncio.get_running_loop().call_soon(
+                services.audit_later, agent_id, state_in.x, state_in.y, request.timestamp
+            )
+        else:
+            services.take_audit(agent_id, scored, request.timestamp)
     if wait_frt_s > 0:
         await services.exact_within(job, wait_frt_s)
     # The belief just built, unless the stored one is another (from_dict would give the same arrays:
@@ -268,15 +279,20 @@ async def observe(
     )
 
 
+def _coverage_target(
+    settings: Settings, previous: AgentState | None, patch: dict[str, Any]
+) -> float | None:
+    """The agent's coverage target with this observation's config applied (None: gamma fixed)."""
+    overrides = {**(previous.config if previous else {}), **patch}
+    return effective_config(settings, overrides)["coverage_target"]  # type: ignore[no-any-return]
+
+
 def audit_position(
     services: Services, agent_id: str, request: ObservationRequest, previous: AgentState | None
 ) -> list[Scored]:
     """The observed position scored against the agent's earlier versions whose horizon covers
-    its time (``service.flows.audit``); none for a new agent (or with the audit off)."""
-    if not services.settings.audit:
-        return []
+    its time (``service.flows.audit``); none for a new agent."""
     if previous is None:
-        services.audit.forget(agent_id)  # versions of an earlier life of this id
         return []
     versions = services.audit.covering(agent_id, request.timestamp)
     if not versions:
@@ -285,48 +301,44 @@ def audit_position(
     return score(state.x, state.y, request.timestamp, versions, services.scheduler.lookup)
 
 
-def audited(
-    prior: AgentState | None, scored: list[Scored], t: float, config: dict[str, Any]
-) -> dict[str, Any]:
-    """The agent's audit counts after ``scored``; with ``coverage_target`` the adaptive rule's
-    next state, and ``config["gamma"]`` (in place) the gamma the new version is built with."""
-    audit = fold(prior.audit if prior else None, scored, t)
-    target = config.get("coverage_target")
-    if target is None:
-        audit["gamma_state"] = None
-        return audit
-    g = audit.get("gamma_state")
+def adapt_gamma(prior: AgentState | None, scored: list[Scored], config: dict[str, Any]) -> float:
+    """Adaptive gamma's next state after ``scored`` (``service.flows.adaptive_gamma``, starting at
+    the configured gamma); ``config["gamma"]`` becomes, in place, the gamma the new version is
+    built with."""
+    g = prior.gamma_state if prior is not None else None
     missed = sum(not s.in_c for s in scored)
     g = next_state(
-        config["gamma"] if g is None else g, len(scored), missed, target, config["coverage_step"]
+        config["gamma"] if g is None else g,
+        len(scored),
+        missed,
+        config["coverage_target"],
+        config["coverage_step"],
     )
-    audit["gamma_state"] = g
     config["gamma"] = served_gamma(g)
-    return audit
+    return g
 
 
-def audit_out(audit: dict[str, Any] | None) -> AuditOut:
+def audit_out(counts: dict[str, Any] | None, gamma_state: float | None) -> AuditOut:
     """The ``audit`` of the agent's view (zeros before any audit)."""
-    audit = audit or {}
-    n = int(audit.get("audited", 0))
+    counts = counts or {}
+    n = int(counts.get("audited", 0))
     return AuditOut(
         audited=n,
-        missed_k=int(audit.get("missed_k", 0)),
-        missed_c=int(audit.get("missed_c", 0)),
-        exact=int(audit.get("exact", 0)),
-        coverage_k=1.0 - audit["missed_k"] / n if n else None,
-        coverage_c=1.0 - audit["missed_c"] / n if n else None,
-        last_miss=audit.get("last_miss"),
-        gamma_state=audit.get("gamma_state"),
+        missed_k=int(counts.get("missed_k", 0)),
+        missed_c=int(counts.get("missed_c", 0)),
+        exact=int(counts.get("exact", 0)),
+        coverage_k=1.0 - counts["missed_k"] / n if n else None,
+        coverage_c=1.0 - counts["missed_c"] / n if n else None,
+        last_miss=counts.get("last_miss"),
+        gamma_state=gamma_state,
     )
 
 
-def gamma_effective(config: dict[str, Any], audit: dict[str, Any] | None) -> float:
+def gamma_effective(config: dict[str, Any], gamma_state: float | None) -> float:
     """The gamma the agent's current version is built with."""
-    g = audit.get("gamma_state") if audit else None
-    if config.get("coverage_target") is None or g is None:
+    if config.get("coverage_target") is None or gamma_state is None:
         return float(config["gamma"])
-    return served_gamma(g)
+    return served_gamma(gamma_state)
 
 
 def _prediction_form(
@@ -404,8 +416,12 @@ async def get_agent(services: Services, agent_id: str, wait_frt_s: float = 0.0) 
         agent_class=state.config.get("agent_class", "car"),
         modes=modes_out(state.modes),
         mode_mass=state.modes["mode_mass"] if state.modes else None,
-        gamma_effective=gamma_effective(config, state.audit),
-        audit=audit_out(state.audit) if services.settings.audit else None,
+        gamma_effective=gamma_effective(config, state.gamma_state),
+        audit=(
+            audit_out(services.audit.counts(agent_id), state.gamma_state)
+            if services.settings.audit
+            else None
+        ),
     )
 
 

@@ -12,9 +12,13 @@ set if it is still cached (the two latest versions, ``VERSIONS_PER_AGENT``) and 
 is drawn, else its conservative set, which contains it (a miss of the conservative set is a miss
 of the exact one; a hit may not be). Which one is recorded (``source``). The conservative set of
 every version is built by its observation anyway (``Services.conservative``); the ledger keeps a
-reference to it, a few kB, for the agent's latest ``audit_max_versions`` versions. The ledger is
-the process's own: with several replicas an observation is scored against the versions its
-replica served.
+reference to it, a few kB, for the agent's latest ``audit_max_versions`` versions.
+
+When: after the observation's answer is sent (``Services.audit_later``), so the observation does
+not wait for it, unless the agent has adaptive gamma (``coverage_target``), whose next bounds
+depend on it: then before its new state is built. The ledger, and so each agent's counts, is the
+process's own: with several replicas an observation is scored against the versions its replica
+served, and ``GET /v1/agents/{id}`` reports the counts of the replica that answers it.
 """
 
 from __future__ import annotations
@@ -53,33 +57,56 @@ class ServedVersion:
         return self.t0 < t <= self.horizon_end + HORIZON_SLACK_S
 
 
+class _AgentAudit:
+    """One agent's recent versions and its counts (``fold``)."""
+
+    __slots__ = ("counts", "versions")
+
+    def __init__(self, max_versions: int) -> None:
+        self.versions: deque[ServedVersion] = deque(maxlen=max_versions)
+        self.counts: dict[str, Any] | None = None
+
+
 class AuditLedger:
-    """Per agent, its latest ``max_versions`` served versions (oldest first), for at most
-    ``max_agents`` agents (the least recently observed go first). Thread-safe."""
+    """Per agent, its latest ``max_versions`` served versions (oldest first) and its audit counts,
+    for at most ``max_agents`` agents (the least recently observed go first). Thread-safe."""
 
     def __init__(self, max_versions: int, max_agents: int) -> None:
         self._max_versions = max_versions
         self._max_agents = max_agents
-        self._agents: OrderedDict[str, deque[ServedVersion]] = OrderedDict()
+        self._agents: OrderedDict[str, _AgentAudit] = OrderedDict()
         self._lock = threading.Lock()
 
     def covering(self, agent_id: str, t: float) -> list[ServedVersion]:
         """The agent's versions whose horizon covers ``t``, oldest first."""
         with self._lock:
-            versions = self._agents.get(agent_id)
-            return [v for v in versions if v.covers(t)] if versions else []
+            entry = self._agents.get(agent_id)
+            return [v for v in entry.versions if v.covers(t)] if entry else []
 
     def record(self, agent_id: str, served: ServedVersion) -> None:
-        """Add the agent's new version (dropping its versions from an earlier life: a version
-        not above the last recorded means the agent was created again)."""
+        """Add the agent's new version (starting afresh if it is not above the last recorded: the
+        agent was created again)."""
         with self._lock:
-            versions = self._agents.pop(agent_id, None)
-            if versions is None or (versions and versions[-1].version >= served.version):
-                versions = deque(maxlen=self._max_versions)
-            versions.append(served)
-            self._agents[agent_id] = versions
+            entry = self._agents.pop(agent_id, None)
+            if entry is None or (entry.versions and entry.versions[-1].version >= served.version):
+                entry = _AgentAudit(self._max_versions)
+            entry.versions.append(served)
+            self._agents[agent_id] = entry
             while len(self._agents) > self._max_agents:
                 self._agents.popitem(last=False)
+
+    def add(self, agent_id: str, scored: Sequence[Scored], t: float) -> None:
+        """Count the positions ``scored`` at ``t`` into the agent's counts (``fold``)."""
+        with self._lock:
+            entry = self._agents.get(agent_id)
+            if entry is not None:
+                entry.counts = fold(entry.counts, scored, t)
+
+    def counts(self, agent_id: str) -> dict[str, Any] | None:
+        """The agent's counts (``fold``), None if nothing was audited."""
+        with self._lock:
+            entry = self._agents.get(agent_id)
+            return None if entry is None or entry.counts is None else dict(entry.counts)
 
     def forget(self, agent_id: str) -> None:
         with self._lock:
@@ -126,15 +153,15 @@ def score(
     each from its exact set if ``exact_of`` has it with the tube drawn, else its conservative set.
     The box sets are measured together in one vectorised call, the exact ones in another."""
     xy = np.array([[x, y]], dtype=np.float64)
-    t_rel = [np.array([t - v.t0]) for v in versions]
+    t_rel = list((t - np.array([v.t0 for v in versions]))[:, None])  # one row per version
     chosen: list[FRTSet] = []
     exact: list[bool] = []
-    for v, rel in zip(versions, t_rel, strict=True):
+    for v in versions:
         frt = exact_of(v.key)
         usable = (
             frt is not None
             and frt.clearance_from_tubes
-            and not frt.missing_tubes([frt.tube_index(float(rel[0]))])
+            and not frt.missing_tubes([frt.tube_index(t - v.t0)])
         )
         chosen.append(frt if usable else v.conservative)  # type: ignore[arg-type]
         exact.append(usable)
@@ -162,7 +189,7 @@ def score(
 
 
 def fold(counts: dict[str, Any] | None, scored: Sequence[Scored], t: float) -> dict[str, Any]:
-    """An agent's audit counts (``AgentState.audit``) after the positions ``scored`` at ``t``:
+    """An agent's audit counts after the positions ``scored`` at ``t``:
     audited, missed in K and in C, how many came from exact sets, and the last miss (the worst of
     the latest observation with one)."""
     out = dict(counts) if counts else {"audited": 0, "missed_k": 0, "missed_c": 0, "exact": 0}

@@ -32,7 +32,7 @@ from reach.sets import FRTSet
 from reach.union import conservative_union
 from service.api.errors import ServiceUnavailableError
 from service.api.schemas import ActiveParts, NetworkPart
-from service.flows.audit import AuditLedger, RollingCoverage, Scored
+from service.flows.audit import AuditLedger, RollingCoverage, Scored, score
 from service.flows.mode_states import set_bounds
 from service.flows.tube_builder import TubeBuilder
 from service.runtime.answer_cost import AnswerCosts
@@ -249,10 +249,19 @@ class Services:
         self.tube_demand.forget(agent_id)
         self.audit.forget(agent_id)
 
-    def count_audit(self, scored: Sequence[Scored]) -> None:
-        """Export audited positions (``frt_audit_*``): one counter update per label set."""
+    def audit_later(self, agent_id: str, x: float, y: float, t: float) -> None:
+        """Audit the position (x, y) observed at ``t`` against the agent's earlier versions
+        (``service.flows.audit``): called once the observation's answer is on its way."""
+        versions = self.audit.covering(agent_id, t)
+        if versions:
+            self.take_audit(agent_id, score(x, y, t, versions, self.scheduler.lookup), t)
+
+    def take_audit(self, agent_id: str, scored: Sequence[Scored], t: float) -> None:
+        """Count audited positions into the agent's counts and the ``frt_audit_*`` metrics (one
+        counter update per label set)."""
         if not scored:
             return
+        self.audit.add(agent_id, scored, t)
         metrics = self.metrics
         groups: dict[tuple[str, str], list[Scored]] = {}
         for s in scored:

@@ -331,7 +331,16 @@ def calibrate(
     replays = sweep(client, tracks, sigma, gammas, [*beta_lows, None], log)
     points = summarise(replays, split)
     choice = choose(points, target, kind)
+    chosen = choice["chosen"]
+    calibration_ids = {t.track_id for t in split["calibration"]}
+    key = "in_c_time" if kind == "time_indexed" else "in_c"
+    misses = [
+        {"track_id": o.track_id, "t": o.t, "speed": round(o.speed, 3), "in_c": getattr(o, key)}
+        for o in replays[(chosen, choice["per_confidence"][chosen]["gamma"])].observations
+        if o.track_id in calibration_ids and getattr(o, key) < 1.0
+    ]
     return {
+        "misses_at_choice_calibration_half": misses,
         "split": {name: [t.track_id for t in ts] for name, ts in split.items()},
         "sigma": sigma.tolist(),
         "beta_lows": list(beta_lows),

@@ -41,7 +41,8 @@ it with httpx from this process. Prints medians and p99 for:
    exact sets have their tubes drawn and are scored exactly), the two services' requests
    alternating; and, on the audit's service, a car with adaptive gamma (``coverage_target``),
    whose observations are audited before they are answered (the others' after); the
-   observation's latency at the client and at the server (``Server-Timing``);
+   observation's latency at the client and at the server (``Server-Timing``); and the audit's
+   own work for one observation against 30 versions, in-process;
 
 and, side by side in the same run, the naive approach: building the set by evaluating the full
 network on a dense grid for every query (no cache, no distilled projection).
@@ -747,17 +748,45 @@ def bench_audit(model: Path, n: int, rate_hz: float = 10.0) -> dict[str, dict]:
     return out
 
 
+def bench_audit_in_process(model: Path, n: int, versions: int = 30) -> dict[str, dict]:
+    """The audit's own work for one observation, in-process: a position scored against
+    ``versions`` earlier versions' conservative sets (a 3 s horizon at 10 Hz; what
+    ``Services.audit_later`` does after the answer, and an adaptive agent's observation before)."""
+    from models.runtime import ValueModel
+    from models.value_fields import engine_for, network_decision
+    from reach.frames import Pose
+    from service.flows.audit import ServedVersion, fold, score
+    from service.runtime.scheduler import FRTKey
+
+    value_model = ValueModel.load(model)
+    engine = engine_for(value_model, network=network_decision(value_model.card, "auto")[0])
+    bounds = np.array([-0.1, -1.0, -0.1, -1.0, 0.1, 1.0, 0.1, 1.0])
+    served = [
+        ServedVersion(k + 1, FRTKey.of("a", k + 1, [float(k)]), 0.1 * k, 0.1 * k + 3.0, 1.5,
+                      "car", engine.conservative(Pose(0.8 * k, 0.0, 0.0), 8.0, bounds))
+        for k in range(versions)
+    ]  # fmt: skip
+    t = 0.1 * versions
+    times = []
+    for i in range(n + 5):
+        start = time.perf_counter()
+        fold(None, score(8.0 * t, 0.1, t, served, lambda key: None), t)
+        if i >= 5:
+            times.append(time.perf_counter() - start)
+    return {f"audit_score_{versions}_versions_in_process": stats(times)}
+
+
 def print_audit(results: dict) -> None:
     for side in ("client", "server"):
-        on, off = (
-            results.get(f"observation_audit_on_{side}"),
-            results.get(f"observation_audit_off_{side}"),
-        )
-        if on and off:
-            print(
-                f"audit cost on the observation ({side}): p50 {on['p50_ms'] - off['p50_ms']:+.3f} "
-                f"ms, p99 {on['p99_ms'] - off['p99_ms']:+.3f} ms (on - off, same run)"
-            )
+        off = results.get(f"observation_audit_off_{side}")
+        for key in ("on", "adaptive"):
+            on = results.get(f"observation_audit_{key}_{side}")
+            if on and off:
+                print(
+                    f"audit cost on the observation, {key} - off ({side}): p50 "
+                    f"{on['p50_ms'] - off['p50_ms']:+.3f} ms, p99 "
+                    f"{on['p99_ms'] - off['p99_ms']:+.3f} ms (same run)"
+                )
     if "audit_positions" in results:
         a = results["audit_positions"]
         print(f"audited positions: {a['audited']}, of which scored on exact sets: {a['exact']}")
@@ -844,6 +873,7 @@ def main() -> None:
     results: dict = {}
     if args.audit_only:
         results.update(bench_audit(args.model.resolve(), args.audit_observations))
+        results.update(bench_audit_in_process(args.model.resolve(), args.audit_observations))
         print_table(results)
         print_audit(results)
         args.out.parent.mkdir(parents=True, exist_ok=True)
@@ -881,6 +911,7 @@ def main() -> None:
             results["sustained_runs"] = runs
     if not (args.sustained_only or args.modes_only):
         results.update(bench_audit(args.model.resolve(), args.audit_observations))
+        results.update(bench_audit_in_process(args.model.resolve(), args.audit_observations))
         results.update(bench_exact_in_process(args.model.resolve(), args.observations))
         results.update(bench_serialisation(args.checks))
         results["naive_dense_grid_per_query"] = bench_naive(args.model.resolve(), args.naive)

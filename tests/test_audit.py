@@ -7,6 +7,7 @@ distance to K at that point's time.
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from collections.abc import Iterator
@@ -142,6 +143,42 @@ def test_a_new_life_of_an_agent_is_not_scored_against_the_old_one(client: TestCl
     assert (audit["audited"], audit["missed_c"]) == (1, 0)
 
 
+def test_multi_modal_cyclist_is_audited_against_its_union_set(client: TestClient) -> None:
+    """A two-mode cyclist: its sets are the union of the modes' (the check's distances, taken as
+    ground truth, are to the same union); the class sets the collision radius and labels the
+    metrics."""
+    before = client.get("/metrics").text.count('agent_class="cyclist"')
+    modes = {"modes": [{"weight": 0.5, "mean": STRAIGHT, "cov": NARROW},
+                       {"weight": 0.5, "mean": [[0.8, 0.5]] * 6, "cov": NARROW}]}  # fmt: skip
+
+    def send(t: float, x: float, y: float) -> None:
+        body = {
+            "timestamp": t,
+            "state": {"x": x, "y": y, "heading": 0.0, "speed": 4.0},
+            "prediction": {"dt": 0.5, **modes},
+            "agent_class": "cyclist",
+        }
+        r = client.post("/v1/agents/bike/observations?wait_frt_ms=5000", json=body)
+        assert r.status_code == 200, r.text
+
+    hit, miss = (1.5, 6.0, 0.0), (2.0, 0.0, -30.0)
+    send(0.0, 0.0, 0.0)
+    assert distance_to_k(client, "bike", *hit) <= 0.0
+    d1 = distance_to_k(client, "bike", *miss)
+    send(*hit)
+    d2 = distance_to_k(client, "bike", *miss)
+    send(*miss)
+    agent = client.get("/v1/agents/bike").json()
+    audit = agent["audit"]
+    assert (audit["audited"], audit["missed_k"], audit["missed_c"]) == (1 + 2, 2, 2)
+    radius = agent["config"]["collision_radius"]
+    assert radius != 1.5  # the cyclist's own
+    last = audit["last_miss"]
+    assert last["distance_outside_k_m"] == pytest.approx(max(d1, d2), abs=1e-9)
+    assert last["distance_outside_c_m"] == pytest.approx(max(d1, d2) - radius, abs=1e-9)
+    assert client.get("/metrics").text.count('agent_class="cyclist"') > before
+
+
 def test_audit_off(analytic_model_path: Path) -> None:
     for c in _client(analytic_model_path, audit=False):
         observe(c, "quiet", 0.0, 0.0, 0.0)
@@ -166,9 +203,10 @@ def test_rule_bound_holds_on_any_sequence() -> None:
     """Gibbs & Candès's bound, misses/T <= a + (g_T - g_1) / (eta T), on adversarial streams:
     misses exactly when gamma is low, in bursts, and at random."""
     rng = np.random.default_rng(0)
+    ticks = itertools.count()
     streams = {
         "adversarial": lambda g: bool(g < 0.6),
-        "bursts": lambda g, k=iter(range(10**6)): next(k) % 50 < 10,
+        "bursts": lambda g: next(ticks) % 50 < 10,
         "random": lambda g: bool(rng.random() < 0.3),
     }
     target, step = 0.95, 0.03

@@ -49,6 +49,8 @@ from service.runtime.profiles import PROFILES_DIR, write_profile
 #: The gamma grid: 0.05 to 0.99.
 GAMMAS: tuple[float, ...] = (0.05, 0.075, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 0.99)
 TARGET = 0.99
+#: Targets the report also shows the choice for, from the same replays.
+OTHER_TARGETS: tuple[float, ...] = (0.95, 0.98)
 DEFAULT_DATA = av2.DATA_DIR / av2.SCENARIO_FILE
 #: Tracks replayed at once (each its own agent): the service overlaps their exact sets.
 CONCURRENT_TRACKS = 4
@@ -379,40 +381,61 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", type=Path, default=ROOT / "results")
     parser.add_argument("--docs", type=Path, default=ROOT / "docs")
     parser.add_argument("--profiles", type=Path, default=PROFILES_DIR)
+    parser.add_argument(
+        "--from-json",
+        type=Path,
+        help="a results/calibration_<name>.json: choose again from its replays (no service)",
+    )
     args = parser.parse_args(argv)
     start = time.monotonic()
 
     def log(message: str) -> None:
         print(f"[{time.monotonic() - start:6.1f} s] {message}", flush=True)
 
-    tracks = track_files.load(args.data)
     gammas = sorted(float(g) for g in args.gammas.split(","))
-    log(f"{len(tracks)} tracks from {args.data}")
-    with connect(args.url, args.model) as client:
-        card = client.model()
-        beta_lows = [float(b) for b in args.beta_lows.split(",") if b]
-        result = calibrate(client, tracks, gammas, args.target, beta_lows, args.coverage, log)
-    settings = profile_settings(result)
     name = args.profile
     data = args.data.resolve()
+    data_name = str(data.relative_to(ROOT) if data.is_relative_to(ROOT) else data)
+    if args.from_json is not None:  # the report again from saved replays, with this target
+        body = json.loads(args.from_json.read_text())
+        points = [Point(**p) for p in body["points"]]
+        result = {**body, "points": points, "choice": choose(points, args.target, args.coverage)}
+        model_name, data_name = body["model"], body["data"]
+        gammas = sorted({p.gamma for p in points})
+        log(f"replays of {args.from_json}")
+    else:
+        tracks = track_files.load(args.data)
+        log(f"{len(tracks)} tracks from {args.data}")
+        with connect(args.url, args.model) as client:
+            model_name = client.model().name
+            beta_lows = [float(b) for b in args.beta_lows.split(",") if b]
+            result = calibrate(client, tracks, gammas, args.target, beta_lows, args.coverage, log)
+    settings = profile_settings(result)
     body = {
-        "data": str(data.relative_to(ROOT) if data.is_relative_to(ROOT) else data),
-        "model": card.name,
+        "data": data_name,
+        "model": model_name,
         "predictor": "constant velocity and turn rate, diagonal covariance per 0.5 s step "
         "fitted on the calibration half (experiments/av2.py)",
-        **{k: v for k, v in result.items() if k != "points"},
+        **{k: v for k, v in result.items() if k not in ("points", "seconds")},
         "points": [asdict(p) for p in result["points"]],
-        "seconds": round(time.monotonic() - start, 1),
+        "seconds": result.get("seconds", round(time.monotonic() - start, 1)),
     }
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / f"calibration_{name}.json").write_text(json.dumps(body, indent=2) + "\n")
     md = table(result["points"], result["choice"])
+    others = "".join(
+        f"### Target {t:.0%}\n\n{table(result['points'], choose(result['points'], t, args.coverage))}\n"
+        for t in OTHER_TARGETS
+        if abs(t - args.target) > 1e-9
+    )
     (args.out / f"calibration_{name}.md").write_text(
-        f"# Calibration `{name}` ({args.data.name}, model {card.name})\n\n{md}\n"
+        f"# Calibration `{name}` ({Path(data_name).name}, model {model_name})\n\n"
+        f"Command: `make calibrate DATA={data_name} TARGET={args.target:g} PROFILE={name}`.\n\n"
+        f"{md}\n## The same replays, other targets\n\n{others}"
         f"## Every γ\n\n{grid_table(result['points'])}"
     )
     plot(result["points"], result["choice"], args.docs / f"calibration_{name}.png",
-         f"{args.data.name}: coverage vs area of C, γ {gammas[0]:g}–{gammas[-1]:g}")  # fmt: skip
+         f"{Path(data_name).name}: coverage vs area of C, γ {gammas[0]:g}–{gammas[-1]:g}")  # fmt: skip
     choice = result["choice"]
     if not choice["target_reached"]:
         log(f"target {args.target} not reached on the calibration half by any gamma of the grid")
@@ -420,7 +443,7 @@ def main(argv: list[str] | None = None) -> None:
         args.profiles / f"{name}.json",
         name,
         settings,
-        source=f"make calibrate DATA={body['data']} (results/calibration_{name}.json)",
+        source=f"make calibrate DATA={data_name} (results/calibration_{name}.json)",
         target=args.target,
         target_reached=choice["target_reached"],
         coverage=args.coverage,

@@ -268,3 +268,21 @@ def test_adaptive_gamma_holds_its_target_where_the_humans_leave_the_narrow_set(
     assert audit["missed_c"] / n <= (1 - target) + (g_final - gamma) / (step * n) + 1e-12
     assert g_final < 1.5
     assert audit["coverage_c"] >= target - 0.01
+
+
+def test_sdk_reads_the_audit_and_sets_a_coverage_target(live_server) -> None:
+    from frt_client import Audit, FRTClient
+
+    prediction = {"dt": 0.5, "mean": STRAIGHT, "cov": NARROW}
+    with FRTClient(live_server.url) as sdk:
+        sdk.observe("sdk-audit", timestamp=0.0, state=(0.0, 0.0, 0.0, 5.0),
+                    prediction=prediction, config={"coverage_target": 0.95})  # fmt: skip
+        sdk.observe("sdk-audit", timestamp=0.5, state=(0.0, 40.0, 0.0, 5.0), prediction=prediction)
+        agent = sdk.get_agent("sdk-audit")
+        sdk.delete_agent("sdk-audit")
+    assert isinstance(agent.audit, Audit)
+    assert (agent.audit.audited, agent.audit.missed_c) == (1, 1)
+    assert agent.audit.last_miss is not None and agent.audit.last_miss.distance_outside_c_m > 30
+    assert agent.config.coverage_target == 0.95
+    # One miss at target 0.95: gamma rose from the default by step * target.
+    assert agent.gamma_effective == pytest.approx(0.075 + agent.config.coverage_step * 0.95)

@@ -238,7 +238,6 @@ async def observe(
     # Built now, so that checks finding the exact set late look it up; the audit keeps it.
     conservative = services.conservative(job)
     if settings.audit:
-        config = state.config
         services.audit.record(
             agent_id,
             ServedVersion(
@@ -246,8 +245,10 @@ async def observe(
                 key=job.key,
                 t0=state.timestamp,
                 horizon_end=state.timestamp + services.horizon_s(),
-                collision_radius=float(config.get("collision_radius") or settings.collision_radius),
-                agent_class=str(config.get("agent_class", "car")),
+                collision_radius=float(
+                    effective_config(settings, state.config)["collision_radius"]
+                ),
+                agent_class=str(state.config.get("agent_class", "car")),
                 conservative=conservative,
             ),
         )

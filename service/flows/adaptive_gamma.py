@@ -1,7 +1,7 @@
 """Adaptive gamma: adaptive conformal inference on the audit's misses of C.
 
 Gibbs, I. and Candès, E. (2021), "Adaptive Conformal Inference Under Distribution Shift",
-NeurIPS 34 (arXiv:2106.00170), eq. (2): ``alpha_{t+1} = alpha_t + eta (alpha - err_t)``, with
+NeurIPS 34 (arXiv:2106.00170), their update ``alpha_{t+1} = alpha_t + eta (alpha - err_t)``, with
 ``err_t`` = 1 when the set built at level ``alpha_t`` misses the outcome. Here the level is gamma,
 the Gaussian mass each control interval holds (API.md, "Observation"): sets grow with gamma, as the
 conformal sets grow as alpha falls. With ``a = 1 - target`` (the miss rate to hold) and one step
@@ -13,7 +13,7 @@ and the agent's next sets are built with ``gamma = min(g, GAMMA_MAX)`` (a miss r
 ``eta * target``; a hit lowers it by ``eta * (1 - target)``: slowly, for a target near 1). ``g``
 starts at the agent's configured gamma.
 
-What it guarantees (Gibbs & Candès, Proposition 4.1, by telescoping the update): over the agent's
+What it guarantees (Gibbs & Candès's coverage bound, by telescoping the update): over the agent's
 first T audited positions, for any sequence of humans and predictions, adversarial included,
 
     misses / T  <=  a + (g_(T+1) - g_1) / (eta T)

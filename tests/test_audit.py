@@ -286,3 +286,30 @@ def test_sdk_reads_the_audit_and_sets_a_coverage_target(live_server) -> None:
     assert agent.config.coverage_target == 0.95
     # One miss at target 0.95: gamma rose from the default by step * target.
     assert agent.gamma_effective == pytest.approx(0.075 + agent.config.coverage_step * 0.95)
+
+
+def test_ledger_keeps_only_versions_that_can_still_cover_and_forgets_idle_agents() -> None:
+    from service.flows.audit import AuditLedger, ServedVersion
+    from service.runtime.scheduler import FRTKey
+
+    now = [0.0]
+    ledger = AuditLedger(max_versions=4, max_agents=2, ttl_s=10.0, clock=lambda: now[0])
+
+    def served(agent: str, version: int, t0: float) -> ServedVersion:
+        key = FRTKey.of(agent, version, [t0])
+        return ServedVersion(version, key, t0, t0 + 3.0, 1.5, "car", None)  # type: ignore[arg-type]
+
+    for v, t0 in enumerate((0.0, 1.0, 2.0, 3.0, 3.5), start=1):
+        ledger.record("a", served("a", v, t0))
+    # At most 4 kept; at 3.6 the horizons of versions 2 (to 4.0) .. 5 cover it.
+    assert [v.version for v in ledger.covering("a", 3.6)] == [2, 3, 4, 5]
+    ledger.record("a", served("a", 6, 5.5))  # versions 2 (to 4.0) and 3 (to 5.0) have ended
+    assert [v.version for v in ledger.covering("a", 5.6)] == [4, 5, 6]
+    ledger.record("a", served("a", 1, 9.0))  # version 1 again: a new life starts afresh
+    assert [v.version for v in ledger.covering("a", 9.5)] == [1]
+    ledger.record("b", served("b", 1, 0.0))
+    ledger.record("c", served("c", 1, 0.0))  # over the cap of 2: "a", least recent, goes
+    assert ledger.covering("a", 9.5) == [] and len(ledger) == 2
+    now[0] = 11.0
+    ledger.record("d", served("d", 1, 0.0))  # "b" and "c" idle for more than the TTL
+    assert len(ledger) == 1 and ledger.covering("d", 1.0) != []

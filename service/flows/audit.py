@@ -12,7 +12,8 @@ set if it is still cached (the two latest versions, ``VERSIONS_PER_AGENT``) and 
 is drawn, else its conservative set, which contains it (a miss of the conservative set is a miss
 of the exact one; a hit may not be). Which one is recorded (``source``). The conservative set of
 every version is built by its observation anyway (``Services.conservative``); the ledger keeps a
-reference to it, a few kB, for the agent's latest ``audit_max_versions`` versions.
+reference to it (about 3.3 kB) for the agent's latest ``audit_max_versions`` versions whose
+horizon has not ended, and forgets an agent not observed for the agent TTL.
 
 When: after the observation's answer is sent (``Services.audit_later``), so the observation does
 not wait for it, unless the agent has adaptive gamma (``coverage_target``), whose next bounds
@@ -23,7 +24,9 @@ served, and ``GET /v1/agents/{id}`` reports the counts of the replica that answe
 
 from __future__ import annotations
 
+import math
 import threading
+import time
 from collections import OrderedDict, deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -58,22 +61,32 @@ class ServedVersion:
 
 
 class _AgentAudit:
-    """One agent's recent versions and its counts (``fold``)."""
+    """One agent's recent versions, its counts (``fold``) and when it was last recorded."""
 
-    __slots__ = ("counts", "versions")
+    __slots__ = ("counts", "recorded_at", "versions")
 
     def __init__(self, max_versions: int) -> None:
         self.versions: deque[ServedVersion] = deque(maxlen=max_versions)
         self.counts: dict[str, Any] | None = None
+        self.recorded_at = 0.0
 
 
 class AuditLedger:
-    """Per agent, its latest ``max_versions`` served versions (oldest first) and its audit counts,
-    for at most ``max_agents`` agents (the least recently observed go first). Thread-safe."""
+    """Per agent, its latest ``max_versions`` served versions whose horizon has not ended before
+    the latest (oldest first) and its audit counts, for at most ``max_agents`` agents recorded
+    within ``ttl_s`` (the least recently recorded go first). Thread-safe."""
 
-    def __init__(self, max_versions: int, max_agents: int) -> None:
+    def __init__(
+        self,
+        max_versions: int,
+        max_agents: int,
+        ttl_s: float = math.inf,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
         self._max_versions = max_versions
         self._max_agents = max_agents
+        self._ttl_s = ttl_s
+        self._clock = clock
         self._agents: OrderedDict[str, _AgentAudit] = OrderedDict()
         self._lock = threading.Lock()
 
@@ -86,14 +99,23 @@ class AuditLedger:
     def record(self, agent_id: str, served: ServedVersion) -> None:
         """Add the agent's new version (starting afresh if it is not above the last recorded: the
         agent was created again)."""
+        now = self._clock()
         with self._lock:
             entry = self._agents.pop(agent_id, None)
             if entry is None or (entry.versions and entry.versions[-1].version >= served.version):
                 entry = _AgentAudit(self._max_versions)
-            entry.versions.append(served)
+            versions = entry.versions
+            # Timestamps increase per agent: a horizon ended before this version covers nothing.
+            while versions and versions[0].horizon_end + HORIZON_SLACK_S < served.t0:
+                versions.popleft()
+            versions.append(served)
+            entry.recorded_at = now
             self._agents[agent_id] = entry
-            while len(self._agents) > self._max_agents:
-                self._agents.popitem(last=False)
+            agents = self._agents
+            while len(agents) > self._max_agents or (
+                agents and next(iter(agents.values())).recorded_at < now - self._ttl_s
+            ):
+                agents.popitem(last=False)  # the least recently recorded: expired, or over the cap
 
     def add(self, agent_id: str, scored: Sequence[Scored], t: float) -> None:
         """Count the positions ``scored`` at ``t`` into the agent's counts (``fold``)."""

@@ -129,7 +129,9 @@ class Services:
             scheduler=scheduler,
             conservative_cache=LRUCache(settings.frt_cache_size),
             tubes=TubeBuilder(on_drawn=metrics.event_loop_tubes.inc),
-            audit=AuditLedger(settings.audit_max_versions, settings.max_agents),
+            audit=AuditLedger(
+                settings.audit_max_versions, settings.max_agents, ttl_s=settings.agent_ttl_s
+            ),
             coverage=RollingCoverage(settings.audit_window),
         )
 
@@ -253,8 +255,14 @@ class Services:
         """Audit the position (x, y) observed at ``t`` against the agent's earlier versions
         (``service.flows.audit``): called once the observation's answer is on its way."""
         versions = self.audit.covering(agent_id, t)
-        if versions:
-            self.take_audit(agent_id, score(x, y, t, versions, self.scheduler.lookup), t)
+        if not versions:
+            return
+        try:
+            scored = score(x, y, t, versions, self.scheduler.lookup)
+        except Exception as exc:  # a measurement: it must never take the service down
+            log.error("coverage audit failed", extra={"agent_id": agent_id, "error": repr(exc)})
+            return
+        self.take_audit(agent_id, scored, t)
 
     def take_audit(self, agent_id: str, scored: Sequence[Scored], t: float) -> None:
         """Count audited positions into the agent's counts and the ``frt_audit_*`` metrics (one

@@ -91,6 +91,10 @@ def test_server_loads_a_profile_under_the_environment(
     assert (Settings().gamma, Settings().beta_low) == (0.4, 0.1)
     monkeypatch.setenv("FRT_GAMMA", "0.2")
     assert Settings().gamma == 0.2  # the environment wins
+    monkeypatch.delenv("FRT_GAMMA")
+    monkeypatch.setenv("FRT_PROFILE", "av2")  # by name: profiles/av2.json, from make calibrate
+    shipped = load_profile("av2")
+    assert Settings().gamma == shipped["gamma"] and Settings().beta_low == shipped["beta_low"]
     write_profile(tmp_path / "bad.json", "bad", {"gama": 0.4})
     monkeypatch.setenv("FRT_PROFILE", str(tmp_path / "bad.json"))
     with pytest.raises(ProfileError, match="gama"):

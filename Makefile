@@ -11,9 +11,14 @@ PORT ?= 8000
 URL ?= http://127.0.0.1:8000
 DURATION ?= 60
 MODEL ?= models/frt_unicycle.onnx
+# make calibrate: recorded tracks (docs/coverage.md: the Argoverse 2 scenario, or the CSV format),
+# the coverage of C to reach, and the name of the settings profile written (FRT_PROFILE=<name>).
+DATA ?= data/av2/scenario_0a1e6f0a-1817-4a98-b02e-db8c9327d151.parquet
+TARGET ?= 0.99
+PROFILE ?= av2
 FIND_LINKS := $(if $(wildcard /opt/wheels),--find-links /opt/wheels,)
 
-.PHONY: venv serve demo viewer-screenshot test lint format train train-smoke evaluate evaluate-full compare-authors network-diagnostics bench bench-sustained load scale-test scenarios plots clean
+.PHONY: venv serve demo viewer-screenshot test lint format train train-smoke evaluate evaluate-full compare-authors network-diagnostics bench bench-sustained bench-audit load scale-test scenarios calibrate plots clean
 
 $(RUNTIME): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -89,6 +94,10 @@ bench-sustained: $(STAMP)
 	$(BIN)/python scripts/bench.py --model $(MODEL) --sustained-only --sustained-runs 5 \
 		--out results/bench_sustained_runs.json
 
+# The coverage audit's cost on the observation: audit on and off side by side (results/bench_audit.json).
+bench-audit: $(STAMP)
+	$(BIN)/python scripts/bench.py --model $(MODEL) --audit-only
+
 load: $(STAMP)
 	$(BIN)/python scripts/load.py --url $(URL) --duration $(DURATION)
 
@@ -97,6 +106,12 @@ scale-test: $(STAMP)
 
 scenarios: $(STAMP)
 	$(BIN)/python -m experiments.run_all
+
+# Choose gamma on DATA's tracks (half to choose, half to report): profiles/$(PROFILE).json,
+# results/calibration_$(PROFILE).{json,md}, docs/calibration_$(PROFILE).png (docs/coverage.md).
+calibrate: $(STAMP)
+	$(BIN)/python -m experiments.calibrate --data $(DATA) --target $(TARGET) --profile $(PROFILE) \
+		--model $(MODEL)
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache

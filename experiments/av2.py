@@ -179,6 +179,8 @@ class ObservationResult:
     area_k: float
     area_c: float
     conservative: bool
+    #: Share of the future inside C at each point's time (the tube up to it, ⊕ R_col).
+    in_c_time: float = float("nan")
 
 
 @dataclass
@@ -233,9 +235,17 @@ def replay_track(
     v_max: float,
     replay: Replay,
     contours: dict[tuple[str, float], dict[str, Any]] | None = None,
+    gamma: float = GAMMA,
+    beta_low: float | None = None,
 ) -> None:
-    """Observe one track every 0.5 s and score its actual future against K and C."""
+    """Observe one track every 0.5 s and score its actual future against K and C (with
+    ``gamma``, and ``beta_low`` if confidence is on: the scenarios' default if None)."""
     agent_id = f"av2-{track.track_id}-{'on' if confidence else 'off'}-{uuid.uuid4().hex[:6]}"
+    config = (
+        agent_config(confidence, gamma=gamma)
+        if beta_low is None
+        else agent_config(confidence, beta_low=beta_low, gamma=gamma)
+    )
     first, fresh = True, True
     try:
         for i in track.observation_indices():
@@ -255,7 +265,7 @@ def replay_track(
                 state=state,
                 prediction=prediction(cvtr_mean(track, i), sigma),
                 observed_action=None if fresh else track.action(i),
-                config=agent_config(confidence, gamma=GAMMA) if first else None,
+                config=config if first else None,
             )
             first, fresh = False, False
             wait_exact(client, agent_id)
@@ -273,6 +283,7 @@ def replay_track(
             )
             sets = client.contours(agent_id, include=("K", "C"), tube=True)
             d = np.asarray(tube.clearance)
+            d_time = np.asarray(timed.clearance)
             replay.observations.append(
                 ObservationResult(
                     track_id=track.track_id,
@@ -281,10 +292,11 @@ def replay_track(
                     beta=answer.beta,
                     in_k=float(np.mean(d <= 0.0)),
                     in_c=float(np.mean(d <= COLLISION_RADIUS_M)),
-                    in_k_time=float(np.mean(np.asarray(timed.clearance) <= 0.0)),
+                    in_k_time=float(np.mean(d_time <= 0.0)),
                     area_k=_area(sets.tube.K),
                     area_c=_area(sets.tube.C),
                     conservative=bool(tube.conservative or timed.conservative or sets.conservative),
+                    in_c_time=float(np.mean(d_time <= COLLISION_RADIUS_M)),
                 )
             )
             if contours is not None:

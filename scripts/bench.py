@@ -34,6 +34,15 @@ it with httpx from this process. Prints medians and p99 for:
 7. serialising a 50-agent collision answer in-process, the way the service does
    (``service.api.routes.model_json``) and the way FastAPI does for a returned model (validated again
    against ``response_model``, then ``jsonable_encoder`` and ``json.dumps``), alternately;
+8. the coverage audit's cost on the observation (``--audit-only``: these rows alone): two services
+   side by side, the audit on and off (``FRT_AUDIT=0``), each observing one car at 10 Hz (so
+   every observation is scored against the 30 earlier versions its 3 s horizon covers) with a
+   planner's 20-point time-indexed check after each observation (so the two latest versions'
+   exact sets have their tubes drawn and are scored exactly), the two services' requests
+   alternating; and, on the audit's service, a car with adaptive gamma (``coverage_target``),
+   whose observations are audited before they are answered (the others' after); the
+   observation's latency at the client and at the server (``Server-Timing``); and the audit's
+   own work for one observation against 30 versions, in-process;
 
 and, side by side in the same run, the naive approach: building the set by evaluating the full
 network on a dense grid for every query (no cache, no distilled projection).
@@ -69,9 +78,10 @@ def free_port() -> int:
 
 
 @contextmanager
-def running_service(model: Path):
+def running_service(model: Path, **settings: str):
     port = free_port()
     env = dict(os.environ, FRT_MODEL_PATH=str(model), FRT_LOG_REQUESTS="false")
+    env.update({f"FRT_{k.upper()}": v for k, v in settings.items()})
     proc = subprocess.Popen(
         [
             sys.executable,
@@ -682,6 +692,106 @@ def bench_exact_in_process(model: Path, n: int) -> dict[str, dict]:
     return out
 
 
+def audit_observation(t: float, rng: np.random.Generator, first: bool) -> dict:
+    """A car at 8 m/s along +x observed at time ``t`` (where the straight prediction puts it,
+    give or take a tracker's 0.2 m), with a fresh straight-ahead prediction."""
+    body = observation(t, rng, first)
+    body["state"].update(x=8.0 * t, y=float(rng.normal(0, 0.2)), speed=8.0)
+    return body
+
+
+def bench_audit(model: Path, n: int, rate_hz: float = 10.0) -> dict[str, dict]:
+    """The observation with the audit on and off, side by side (module docstring, item 8)."""
+    rng = np.random.default_rng(8)
+    times: dict[str, dict[str, list[float]]] = {
+        k: {"client": [], "server": []} for k in ("on", "off", "adaptive")
+    }
+    audited: dict[str, int] = {}
+    with (
+        running_service(model) as on_url,
+        running_service(model, audit="0") as off_url,
+        httpx.Client(base_url=on_url, timeout=10) as on,
+        httpx.Client(base_url=off_url, timeout=10) as off,
+    ):
+        clients = {"on": on, "off": off, "adaptive": on}
+        agents = {"on": "bench-audit", "off": "bench-audit", "adaptive": "bench-audit-adaptive"}
+        warm_up = round(3.0 * rate_hz) + 5  # the ledger full: 30 versions cover each time
+        for i in range(warm_up + n):
+            t = i / rate_hz
+            body = audit_observation(t, rng, i == 0)
+            order = ("on", "off", "adaptive") if i % 2 == 0 else ("off", "on", "adaptive")
+            for key in order:
+                client, agent = clients[key], agents[key]
+                if key == "adaptive" and i == 0:
+                    body = {**body, "config": {"coverage_target": 0.99}}
+                start = time.perf_counter()
+                r = client.post(f"/v1/agents/{agent}/observations", json=body)
+                elapsed = time.perf_counter() - start
+                r.raise_for_status()
+                if i >= warm_up:
+                    times[key]["client"].append(elapsed)
+                    times[key]["server"].append(server_seconds(r))
+                check = {"trajectory": trajectory(t + 0.1), "mode": "time_indexed",
+                         "deadline_ms": 20}  # fmt: skip
+                client.post(f"/v1/agents/{agent}/collision-check", json=check)
+            time.sleep(max(1.0 / rate_hz - 0.02, 0.02))  # the exact sets land meanwhile
+        agent = on.get("/v1/agents/bench-audit").json()
+        audit = agent["audit"]
+        audited = {"audited": audit["audited"], "exact": audit["exact"]}
+        assert off.get("/v1/agents/bench-audit").json()["audit"] is None
+    out = {
+        f"observation_audit_{key}_{side}": stats(values)
+        for key, sides in times.items()
+        for side, values in sides.items()
+    }
+    out["audit_positions"] = audited  # type: ignore[assignment]
+    return out
+
+
+def bench_audit_in_process(model: Path, n: int, versions: int = 30) -> dict[str, dict]:
+    """The audit's own work for one observation, in-process: a position scored against
+    ``versions`` earlier versions' conservative sets (a 3 s horizon at 10 Hz; what
+    ``Services.audit_later`` does after the answer, and an adaptive agent's observation before)."""
+    from models.runtime import ValueModel
+    from models.value_fields import engine_for, network_decision
+    from reach.frames import Pose
+    from service.flows.audit import ServedVersion, fold, score
+    from service.runtime.scheduler import FRTKey
+
+    value_model = ValueModel.load(model)
+    engine = engine_for(value_model, network=network_decision(value_model.card, "auto")[0])
+    bounds = np.array([-0.1, -1.0, -0.1, -1.0, 0.1, 1.0, 0.1, 1.0])
+    served = [
+        ServedVersion(k + 1, FRTKey.of("a", k + 1, [float(k)]), 0.1 * k, 0.1 * k + 3.0, 1.5,
+                      "car", engine.conservative(Pose(0.8 * k, 0.0, 0.0), 8.0, bounds))
+        for k in range(versions)
+    ]  # fmt: skip
+    t = 0.1 * versions
+    times = []
+    for i in range(n + 5):
+        start = time.perf_counter()
+        fold(None, score(8.0 * t, 0.1, t, served, lambda key: None), t)
+        if i >= 5:
+            times.append(time.perf_counter() - start)
+    return {f"audit_score_{versions}_versions_in_process": stats(times)}
+
+
+def print_audit(results: dict) -> None:
+    for side in ("client", "server"):
+        off = results.get(f"observation_audit_off_{side}")
+        for key in ("on", "adaptive"):
+            on = results.get(f"observation_audit_{key}_{side}")
+            if on and off:
+                print(
+                    f"audit cost on the observation, {key} - off ({side}): p50 "
+                    f"{on['p50_ms'] - off['p50_ms']:+.3f} ms, p99 "
+                    f"{on['p99_ms'] - off['p99_ms']:+.3f} ms (same run)"
+                )
+    if "audit_positions" in results:
+        a = results["audit_positions"]
+        print(f"audited positions: {a['audited']}, of which scored on exact sets: {a['exact']}")
+
+
 #: Where each planner transport's sustained case goes in the results.
 SUSTAINED_KEYS = {"http": "sustained_50_agents", "ws": "sustained_50_agents_ws"}
 
@@ -706,6 +816,16 @@ def print_sustained(s: dict, transport: str, width: int) -> None:
     answers = s["agent_answers"]
     exact_share = answers.get("exact", 0) / max(sum(answers.values()), 1)
     print(f"  per-agent answers from the exact set: {exact_share:.1%} of {sum(answers.values())}")
+
+
+def print_table(results: dict) -> int:
+    """Print every timed row; the width of the name column."""
+    width = max(len(k) for k in results)
+    print(f"{'measure':{width}s}  {'p50 [ms]':>9s} {'p99 [ms]':>9s}")
+    for name, r in results.items():
+        if isinstance(r, dict) and "p50_ms" in r:
+            print(f"{name:{width}s}  {r['p50_ms']:9.2f} {r['p99_ms']:9.2f}")
+    return width
 
 
 def main() -> None:
@@ -739,9 +859,27 @@ def main() -> None:
         action="store_true",
         help="run only the multi-modal rows and the single-mode rows beside them",
     )
-    parser.add_argument("--out", type=Path, default=ROOT / "results" / "bench.json")
+    parser.add_argument(
+        "--audit-only",
+        action="store_true",
+        help="run only the coverage audit's side-by-side rows (audit on and off)",
+    )
+    parser.add_argument("--audit-observations", type=int, default=300)
+    parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
+    if args.out is None:
+        name = "bench_audit.json" if args.audit_only else "bench.json"
+        args.out = ROOT / "results" / name
     results: dict = {}
+    if args.audit_only:
+        results.update(bench_audit(args.model.resolve(), args.audit_observations))
+        results.update(bench_audit_in_process(args.model.resolve(), args.audit_observations))
+        print_table(results)
+        print_audit(results)
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(results, indent=2))
+        print(f"wrote {args.out}")
+        return
     with running_service(args.model.resolve()) as url:
         if args.modes_only:
             with httpx.Client(base_url=url, timeout=10) as client:
@@ -772,17 +910,16 @@ def main() -> None:
         if args.sustained_runs > 1:
             results["sustained_runs"] = runs
     if not (args.sustained_only or args.modes_only):
+        results.update(bench_audit(args.model.resolve(), args.audit_observations))
+        results.update(bench_audit_in_process(args.model.resolve(), args.audit_observations))
         results.update(bench_exact_in_process(args.model.resolve(), args.observations))
         results.update(bench_serialisation(args.checks))
         results["naive_dense_grid_per_query"] = bench_naive(args.model.resolve(), args.naive)
         warm = results["collision_check_20pt_warm"]["p50_ms"]
         naive = results["naive_dense_grid_per_query"]["p50_ms"]
         results["naive_over_engine_p50_ratio"] = naive / warm if warm > 0 else math.inf
-    width = max(len(k) for k in results)
-    print(f"{'measure':{width}s}  {'p50 [ms]':>9s} {'p99 [ms]':>9s}")
-    for name, r in results.items():
-        if isinstance(r, dict) and "p50_ms" in r:
-            print(f"{name:{width}s}  {r['p50_ms']:9.2f} {r['p99_ms']:9.2f}")
+    width = print_table(results)
+    print_audit(results)
     for transport, key in SUSTAINED_KEYS.items():
         if key in results:
             print_sustained(results[key], transport, width)

@@ -97,6 +97,9 @@ class AgentConfig(RequestPart):
     epsilon: float | None = None
     collision_radius: float | None = None
     bounds_fit: BoundsFit | None = None
+    #: Adaptive gamma: the long-run share of audited positions inside C to hold, and its step.
+    coverage_target: float | None = None
+    coverage_step: float | None = None
 
 
 class TrajectoryPoint(RequestPart):

@@ -53,6 +53,39 @@ class EffectiveConfig(Response):
     epsilon: float
     collision_radius: float
     bounds_fit: str
+    #: Adaptive gamma's target share of audited positions inside C (None: gamma fixed).
+    coverage_target: float | None = None
+    coverage_step: float | None = None
+
+
+class LastMiss(Response):
+    """The worst audited position of the agent's latest observation that left an earlier set."""
+
+    #: The observation's time, the earlier version it left, and how long after that version.
+    timestamp: float
+    frt_version: int
+    t_rel_s: float
+    #: Distance outside K at that time (> 0), and outside C (None if inside C).
+    distance_outside_k_m: float
+    distance_outside_c_m: float | None = None
+    #: The set scored: "exact" or "conservative" (which contains the exact one).
+    source: str
+
+
+class Audit(Response):
+    """The coverage audit of one agent: its observed positions against its earlier sets."""
+
+    #: (position, earlier version covering its time) pairs scored, and how many left K, C.
+    audited: int
+    missed_k: int
+    missed_c: int
+    #: How many were scored against the exact set (else the conservative one).
+    exact: int = 0
+    coverage_k: float | None = None
+    coverage_c: float | None = None
+    last_miss: LastMiss | None = None
+    #: Adaptive gamma's running state (None without a coverage target).
+    gamma_state: float | None = None
 
 
 class AgentMode(Response):
@@ -109,6 +142,10 @@ class Agent(Response):
     agent_class: str = "car"
     modes: tuple[AgentMode, ...] | None = None
     mode_mass: float | None = None
+    #: The gamma the current version's bounds are fitted with (adaptive with a coverage target).
+    gamma_effective: float | None = None
+    #: The coverage audit (None with the audit off).
+    audit: Audit | None = None
 
 
 class DeleteResult(Response):

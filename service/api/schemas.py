@@ -133,15 +133,56 @@ class AgentConfig(Request):
     mode_floor: float | None = Field(
         None, ge=0.0, lt=1.0, description="a mode above this posterior is never dropped"
     )
+    coverage_target: float | None = Field(
+        None,
+        gt=0.0,
+        lt=1.0,
+        description="adaptive gamma: the long-run share of audited positions inside C to hold "
+        "(docs/coverage.md); gamma then starts at the configured value and adapts",
+    )
+    coverage_step: float | None = Field(
+        None, gt=0.0, le=1.0, description="the adaptive rule's step (eta)"
+    )
 
 
 class EffectiveConfig(Response):
     beta_low: float
     beta_high: float
-    gamma: float
+    gamma: float = Field(description="the configured gamma (adaptive gamma starts here)")
     epsilon: float
     collision_radius: float
     bounds_fit: str
+    coverage_target: float | None = Field(None, description="adaptive gamma's target; null: off")
+    coverage_step: float
+
+
+class LastMissOut(Response):
+    """The worst audited position of the latest observation that left an earlier set's K."""
+
+    timestamp: float = Field(description="the observation's time")
+    frt_version: int = Field(description="the earlier version it left")
+    t_rel_s: float = Field(description="seconds after that version's observation")
+    distance_outside_k_m: float = Field(description="distance from K at that time (> 0)")
+    distance_outside_c_m: float | None = Field(
+        description="distance from C = K + R_col (> 0); null if the position was inside C"
+    )
+    source: Literal["exact", "conservative"] = Field(description="the set scored")
+
+
+class AuditOut(Response):
+    """The coverage audit of one agent (docs/coverage.md): its observed positions scored against
+    the sets served earlier for it, one per earlier version whose horizon covers the position."""
+
+    audited: int = Field(description="audited positions (position, earlier version) pairs")
+    missed_k: int = Field(description="of them, outside K at that time")
+    missed_c: int = Field(description="of them, outside C = K + R_col")
+    exact: int = Field(description="of them, scored against the exact set (else conservative)")
+    coverage_k: float | None = Field(description="1 - missed_k / audited; null before any")
+    coverage_c: float | None = Field(description="1 - missed_c / audited; null before any")
+    last_miss: LastMissOut | None = None
+    gamma_state: float | None = Field(
+        None, description="adaptive gamma's running state (may exceed the gamma served); null: off"
+    )
 
 
 class ControlBoundsIn(Request):
@@ -294,6 +335,13 @@ class AgentResponse(_DropsUnsetModes):
     )
     config: EffectiveConfig
     agent_class: str = Field("car", description="car, cyclist or pedestrian")
+    gamma_effective: float = Field(
+        description="the gamma the current version's sets are built with: the configured one, "
+        "or adaptive gamma's (config.coverage_target)"
+    )
+    audit: AuditOut | None = Field(
+        None, description="the coverage audit; null with the audit off (FRT_AUDIT=0)"
+    )
 
 
 class DeleteResponse(Response):

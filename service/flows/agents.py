@@ -4,10 +4,15 @@ One observation: validate -> score the observed action against the first step of
 prediction (epsilon-static transition, then Bayes) -> beta -> control bounds of the new prediction ->
 check them against the model's trained ranges -> store the new state atomically with the timestamp
 check -> start the exact FRT of the new version in the background and answer at once.
+
+The observed position is audited against the agent's earlier sets (``service.flows.audit``) after
+the answer is sent; for an agent with ``coverage_target``, before its new state is built, since the
+misses move the gamma the new version's bounds are fitted with (``service.flows.adaptive_gamma``).
 """
 
 from __future__ import annotations
 
+import asyncio
 from typing import Any
 
 import numpy as np
@@ -18,6 +23,7 @@ from service.api.limits import check_prediction_steps
 from service.api.schemas import (
     MAX_MODES,
     AgentResponse,
+    AuditOut,
     BeliefOut,
     ControlBoundsOut,
     DeleteResponse,
@@ -26,6 +32,8 @@ from service.api.schemas import (
     ObservationResponse,
     Prediction,
 )
+from service.flows.adaptive_gamma import next_state, served_gamma
+from service.flows.audit import Scored, ServedVersion, score
 from service.flows.bounds import PredictionError, control_bounds, validate_prediction
 from service.flows.confidence import Belief, hypotheses, prior_belief, update_belief
 from service.flows.mode_states import (
@@ -40,7 +48,15 @@ from service.runtime.services import Services
 from service.runtime.settings import Settings
 from service.runtime.store import AgentState
 
-CONFIG_KEYS = ("beta_low", "gamma", "epsilon", "collision_radius", "bounds_fit")
+CONFIG_KEYS = (
+    "beta_low",
+    "gamma",
+    "epsilon",
+    "collision_radius",
+    "bounds_fit",
+    "coverage_target",
+    "coverage_step",
+)
 
 
 def effective_config(settings: Settings, overrides: dict[str, Any]) -> dict[str, Any]:
@@ -137,12 +153,18 @@ async def observe(
     previous = await services.store.get(agent_id)
     if previous is not None and request.timestamp <= previous.timestamp:
         raise StaleTimestampError(agent_id, request.timestamp, previous.timestamp)
+    if previous is None:
+        services.audit.forget(agent_id)  # versions of an earlier life of this id
+    # Scored now only where the new bounds depend on it (adaptive gamma); else after the answer.
+    adaptive = settings.audit and _coverage_target(settings, previous, patch) is not None
+    scored = audit_position(services, agent_id, request, previous) if adaptive else None
     built: list[Belief] = []  # the belief of each state built, the last one last
 
     def build(prior: AgentState | None, mean: np.ndarray, cov: np.ndarray) -> AgentState:
         overrides = {**(prior.config if prior else {}), **patch}
         klass = resolve_class(agent_id, request.agent_class, prior, overrides)
         config = effective_config(settings, overrides)
+        gamma_state = adapt_gamma(prior, scored, config) if scored is not None else None
         if mixture is not None or (prior is not None and prior.modes is not None):
             state, marginal = build_mode_state(
                 agent_id,
@@ -155,6 +177,7 @@ async def observe(
                 settings,
                 engine,
             )
+            state.gamma_state = gamma_state
             built.append(marginal)
             return state
         belief = _belief(prior, config["beta_low"])
@@ -192,6 +215,7 @@ async def observe(
             control_bounds=[float(b) for b in bounds],
             config=overrides,
             frt_version=(prior.frt_version + 1) if prior else 1,
+            gamma_state=gamma_state,
         )
 
     def first_try() -> tuple[np.ndarray, np.ndarray, AgentState]:
@@ -211,7 +235,30 @@ async def observe(
     state = await services.store.update(agent_id, apply, timestamp=request.timestamp)
     job = services.job_for(state)
     services.submit(job)
-    services.conservative(job)  # built now, so that checks finding the exact set late look it up
+    # Built now, so that checks finding the exact set late look it up; the audit keeps it.
+    conservative = services.conservative(job)
+    if settings.audit:
+        services.audit.record(
+            agent_id,
+            ServedVersion(
+                version=state.frt_version,
+                key=job.key,
+                t0=state.timestamp,
+                horizon_end=state.timestamp + services.horizon_s(),
+                collision_radius=float(
+                    effective_config(settings, state.config)["collision_radius"]
+                ),
+                agent_class=str(state.config.get("agent_class", "car")),
+                conservative=conservative,
+            ),
+        )
+        if scored is None:
+            state_in = request.state
+            asyncio.get_running_loop().call_soon(
+                services.audit_later, agent_id, state_in.x, state_in.y, request.timestamp
+            )
+        else:
+            services.take_audit(agent_id, scored, request.timestamp)
     if wait_frt_s > 0:
         await services.exact_within(job, wait_frt_s)
     # The belief just built, unless the stored one is another (from_dict would give the same arrays:
@@ -231,6 +278,68 @@ async def observe(
         modes=modes_out(state.modes),
         mode_mass=state.modes["mode_mass"] if state.modes else None,
     )
+
+
+def _coverage_target(
+    settings: Settings, previous: AgentState | None, patch: dict[str, Any]
+) -> float | None:
+    """The agent's coverage target with this observation's config applied (None: gamma fixed)."""
+    overrides = {**(previous.config if previous else {}), **patch}
+    return effective_config(settings, overrides)["coverage_target"]  # type: ignore[no-any-return]
+
+
+def audit_position(
+    services: Services, agent_id: str, request: ObservationRequest, previous: AgentState | None
+) -> list[Scored]:
+    """The observed position scored against the agent's earlier versions whose horizon covers
+    its time (``service.flows.audit``); none for a new agent."""
+    if previous is None:
+        return []
+    versions = services.audit.covering(agent_id, request.timestamp)
+    if not versions:
+        return []
+    state = request.state
+    return score(state.x, state.y, request.timestamp, versions, services.scheduler.lookup)
+
+
+def adapt_gamma(prior: AgentState | None, scored: list[Scored], config: dict[str, Any]) -> float:
+    """Adaptive gamma's next state after ``scored`` (``service.flows.adaptive_gamma``, starting at
+    the configured gamma); ``config["gamma"]`` becomes, in place, the gamma the new version is
+    built with."""
+    g = prior.gamma_state if prior is not None else None
+    missed = sum(not s.in_c for s in scored)
+    g = next_state(
+        config["gamma"] if g is None else g,
+        len(scored),
+        missed,
+        config["coverage_target"],
+        config["coverage_step"],
+    )
+    config["gamma"] = served_gamma(g)
+    return g
+
+
+def audit_out(counts: dict[str, Any] | None, gamma_state: float | None) -> AuditOut:
+    """The ``audit`` of the agent's view (zeros before any audit)."""
+    counts = counts or {}
+    n = int(counts.get("audited", 0))
+    return AuditOut(
+        audited=n,
+        missed_k=int(counts.get("missed_k", 0)),
+        missed_c=int(counts.get("missed_c", 0)),
+        exact=int(counts.get("exact", 0)),
+        coverage_k=1.0 - counts["missed_k"] / n if n else None,
+        coverage_c=1.0 - counts["missed_c"] / n if n else None,
+        last_miss=counts.get("last_miss"),
+        gamma_state=gamma_state,
+    )
+
+
+def gamma_effective(config: dict[str, Any], gamma_state: float | None) -> float:
+    """The gamma the agent's current version is built with."""
+    if config.get("coverage_target") is None or gamma_state is None:
+        return float(config["gamma"])
+    return served_gamma(gamma_state)
 
 
 def _prediction_form(
@@ -308,6 +417,12 @@ async def get_agent(services: Services, agent_id: str, wait_frt_s: float = 0.0) 
         agent_class=state.config.get("agent_class", "car"),
         modes=modes_out(state.modes),
         mode_mass=state.modes["mode_mass"] if state.modes else None,
+        gamma_effective=gamma_effective(config, state.gamma_state),
+        audit=(
+            audit_out(services.audit.counts(agent_id), state.gamma_state)
+            if services.settings.audit
+            else None
+        ),
     )
 
 

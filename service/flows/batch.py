@@ -45,16 +45,30 @@ def _same_size(
     b = np.stack([s.boxes for s in sets])[:, None, :, :]  # [A, 1, M, 4]
     counted = None  # every box counts for every point, unless a check is time-indexed
     if any(t is not None for t in t_rel):
-        index = np.stack(
-            [
-                np.full(len(xy_world), frt.n_slices - 1) if t is None else frt.tube_indices(t)
-                for frt, t in zip(sets, t_rel, strict=True)
-            ]
-        )  # [A, N]
+        index = _tube_indices(sets, t_rel, len(xy_world))  # [A, N]
         limit = np.take_along_axis(np.stack([frt.boxes_until for frt in sets]), index, axis=1)
         counted = np.arange(b.shape[2])[None, None, :] < limit[:, :, None]
     x, y = x[:, :, None], y[:, :, None]
     return list(box_union_distances(x, y, b, counted))
+
+
+def _tube_indices(sets: list[BoxTubeSet], t_rel: list[np.ndarray | None], n: int) -> np.ndarray:
+    """``FRTSet.tube_indices`` of each set's times ([A, N]; the last tube where a time is None),
+    in one vectorised call where the sets share their slices (one engine's sets do)."""
+    first = sets[0]
+    grid = (first.slice_dt, first.horizon_s, first.n_slices)
+    if all(t is not None for t in t_rel) and all(
+        (s.slice_dt, s.horizon_s, s.n_slices) == grid for s in sets
+    ):
+        t = np.stack([np.asarray(v, dtype=np.float64).reshape(-1) for v in t_rel])  # type: ignore[arg-type]
+        t = np.clip(t, 0.0, first.horizon_s)
+        return np.minimum(np.ceil(t / first.slice_dt - 1e-9), first.n_slices - 1).astype(int)
+    return np.stack(
+        [
+            np.full(n, frt.n_slices - 1) if t is None else frt.tube_indices(t)
+            for frt, t in zip(sets, t_rel, strict=True)
+        ]
+    )
 
 
 def tube_clearances(

@@ -85,6 +85,27 @@ class Metrics:
             "Collision checks answered after their deadline",
             registry=r,
         )
+        self.audit_positions = Counter(
+            "frt_audit_positions",
+            "Coverage audit: observed positions scored against an earlier version of their agent's "
+            "sets (one per version whose horizon covers the observation), by agent class and by "
+            "the set scored: the exact set (ready, its tube drawn) or the conservative one",
+            ["agent_class", "source"],
+            registry=r,
+        )
+        self.audit_misses = Counter(
+            "frt_audit_misses",
+            "Coverage audit: audited positions outside K (at that time: the tube up to it), or "
+            "outside C = K + R_col, by set, agent class and source (as frt_audit_positions)",
+            ["set", "agent_class", "source"],
+            registry=r,
+        )
+        self.audit_coverage = Gauge(
+            "frt_audit_coverage",
+            "Coverage audit: share of the last audit_window audited positions inside K, or C",
+            ["set"],
+            registry=r,
+        )
         self.agents = Gauge("frt_agents", "Agents in the store", registry=r)
         self.model_ready = Gauge("frt_model_ready", "1 once the model is loaded", registry=r)
 

@@ -32,6 +32,7 @@ from reach.sets import FRTSet
 from reach.union import conservative_union
 from service.api.errors import ServiceUnavailableError
 from service.api.schemas import ActiveParts, NetworkPart
+from service.flows.audit import AuditLedger, RollingCoverage, Scored, score
 from service.flows.mode_states import set_bounds
 from service.flows.tube_builder import TubeBuilder
 from service.runtime.answer_cost import AnswerCosts
@@ -108,6 +109,9 @@ class Services:
     #: Whether worker processes draw the tubes checks ask for before sending a set back
     #: (``Settings.frt_draw_tubes`` and worker processes running).
     _tubes_in_workers: bool = field(default=False, repr=False)
+    #: The coverage audit: each agent's recent versions, and the fleet's rolling coverage.
+    audit: AuditLedger = field(default_factory=lambda: AuditLedger(32, 10_000), repr=False)
+    coverage: RollingCoverage = field(default_factory=lambda: RollingCoverage(1000), repr=False)
 
     @classmethod
     def build(cls, settings: Settings) -> Services:
@@ -125,6 +129,10 @@ class Services:
             scheduler=scheduler,
             conservative_cache=LRUCache(settings.frt_cache_size),
             tubes=TubeBuilder(on_drawn=metrics.event_loop_tubes.inc),
+            audit=AuditLedger(
+                settings.audit_max_versions, settings.max_agents, ttl_s=settings.agent_ttl_s
+            ),
+            coverage=RollingCoverage(settings.audit_window),
         )
 
     # ------------------------------------------------------------------ lifecycle
@@ -241,6 +249,42 @@ class Services:
         self.scheduler.forget(agent_id)
         self.conservative_cache.forget(agent_id)
         self.tube_demand.forget(agent_id)
+        self.audit.forget(agent_id)
+
+    def audit_later(self, agent_id: str, x: float, y: float, t: float) -> None:
+        """Audit the position (x, y) observed at ``t`` against the agent's earlier versions
+        (``service.flows.audit``): called once the observation's answer is on its way."""
+        versions = self.audit.covering(agent_id, t)
+        if not versions:
+            return
+        try:
+            scored = score(x, y, t, versions, self.scheduler.lookup)
+        except Exception as exc:  # a measurement: it must never take the service down
+            log.error("coverage audit failed", extra={"agent_id": agent_id, "error": repr(exc)})
+            return
+        self.take_audit(agent_id, scored, t)
+
+    def take_audit(self, agent_id: str, scored: Sequence[Scored], t: float) -> None:
+        """Count audited positions into the agent's counts and the ``frt_audit_*`` metrics (one
+        counter update per label set)."""
+        if not scored:
+            return
+        self.audit.add(agent_id, scored, t)
+        metrics = self.metrics
+        groups: dict[tuple[str, str], list[Scored]] = {}
+        for s in scored:
+            groups.setdefault((s.agent_class, s.source), []).append(s)
+        for (klass, source), members in groups.items():
+            metrics.audit_positions.labels(klass, source).inc(len(members))
+            for part, missed in (
+                ("K", sum(not s.in_k for s in members)),
+                ("C", sum(not s.in_c for s in members)),
+            ):
+                if missed:
+                    metrics.audit_misses.labels(part, klass, source).inc(missed)
+        in_k, in_c = self.coverage.add(scored)
+        metrics.audit_coverage.labels("K").set(in_k)
+        metrics.audit_coverage.labels("C").set(in_c)
 
     def submit(self, job: FRTJob) -> None:
         """Start computing the exact set of ``job`` in the background."""

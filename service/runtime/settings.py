@@ -2,15 +2,22 @@
 
 from __future__ import annotations
 
+import os
 from functools import lru_cache
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import Field
-from pydantic_settings import BaseSettings, SettingsConfigDict
+from pydantic.fields import FieldInfo
+from pydantic_settings import (
+    BaseSettings,
+    PydanticBaseSettingsSource,
+    SettingsConfigDict,
+)
 
 from reach.contract import HORIZON_S, U1_LIMIT, U2_LIMIT
 from reach.notch import NOTCH_CUT_BY_DEFAULT
+from service.runtime.profiles import PROFILE_ENV, load_profile
 
 DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "models" / "frt_unicycle.onnx"
 
@@ -88,11 +95,53 @@ class Settings(BaseSettings):
     #: Serve the operator's live page at ``GET /viewer`` (docs/viewer.md); off: 404.
     viewer: bool = True
 
+    # The coverage audit (docs/coverage.md): each observation's position scored against the sets
+    # served earlier for its agent.
+    #: Off (``FRT_AUDIT=0``): no audit, no adaptive gamma.
+    audit: bool = True
+    #: Earlier versions of one agent kept for the audit (the latest; each holds its conservative
+    #: set, a few kB): 32 covers a 3 s horizon at 10 Hz.
+    audit_max_versions: int = Field(32, ge=1, le=256)
+    #: Audited positions the rolling coverage gauges (``frt_audit_coverage``) average over.
+    audit_window: int = Field(1000, ge=1, le=1_000_000)
+    #: Adaptive gamma (``service.flows.adaptive_gamma``): the share of audited positions inside C
+    #: to hold in the long run; None (the default) keeps gamma fixed. Per agent in ``config``.
+    coverage_target: float | None = Field(None, gt=0.0, lt=1.0)
+    #: The adaptive rule's step (eta of Gibbs & Candes 2021).
+    coverage_step: float = Field(0.02, gt=0.0, le=1.0)
+
     # Logging: one JSON object per line on stderr.
     log_level: str = "INFO"
     log_json: bool = True
     #: Log one line per HTTP request (method, route, status, duration).
     log_requests: bool = True
+
+    @classmethod
+    def settings_customise_sources(
+        cls,
+        settings_cls: type[BaseSettings],
+        init_settings: PydanticBaseSettingsSource,
+        env_settings: PydanticBaseSettingsSource,
+        dotenv_settings: PydanticBaseSettingsSource,
+        file_secret_settings: PydanticBaseSettingsSource,
+    ) -> tuple[PydanticBaseSettingsSource, ...]:
+        """Explicit arguments, then the environment, then the profile ``FRT_PROFILE`` names
+        (``service.runtime.profiles``), then the defaults."""
+        profile = _ProfileSource(settings_cls)
+        return init_settings, env_settings, dotenv_settings, profile, file_secret_settings
+
+
+class _ProfileSource(PydanticBaseSettingsSource):
+    """The settings of the profile ``FRT_PROFILE`` names (none if unset)."""
+
+    def get_field_value(self, field: FieldInfo, field_name: str) -> tuple[Any, str, bool]:
+        return None, field_name, False  # __call__ reads the whole profile at once
+
+    def __call__(self) -> dict[str, Any]:
+        name = os.environ.get(PROFILE_ENV)
+        if not name:
+            return {}
+        return load_profile(name, known=set(self.settings_cls.model_fields))
 
 
 @lru_cache

@@ -49,6 +49,9 @@ class AgentState:
     #: A multi-modal agent's joint belief, modes and mode set (``service.flows.modes``); None for
     #: a single Gaussian.
     modes: dict[str, Any] | None = None
+    #: Adaptive gamma's running state (``service.flows.adaptive_gamma``); None without a
+    #: ``coverage_target``.
+    gamma_state: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """A deep copy in JSON types (what the Redis store writes): faster than

@@ -1,0 +1,261 @@
+"""The coverage audit: was the human where the service said it could be?
+
+When an observation of an agent arrives at time t, its position is scored against every earlier
+version of the agent's sets whose horizon covers t (``t0 < t <= t0 + horizon``, ``t0`` the
+version's observation time): inside K at that time, i.e. within the tube up to ``t - t0`` (the
+query a time-indexed collision check makes, ``FRTSet.clearance``), and inside C = K ⊕ R_col
+(distance to K at most the version's collision radius). Each (position, earlier version) pair is
+one audited position.
+
+The set scored is the one the service would answer a check from at audit time: the version's exact
+set if it is still cached (the two latest versions, ``VERSIONS_PER_AGENT``) and the position's tube
+is drawn, else its conservative set, which contains it (a miss of the conservative set is a miss
+of the exact one; a hit may not be). Which one is recorded (``source``). The conservative set of
+every version is built by its observation anyway (``Services.conservative``); the ledger keeps a
+reference to it (about 3.3 kB) for the agent's latest ``audit_max_versions`` versions whose
+horizon has not ended, and forgets an agent not observed for the agent TTL.
+
+When: after the observation's answer is sent (``Services.audit_later``), so the observation does
+not wait for it, unless the agent has adaptive gamma (``coverage_target``), whose next bounds
+depend on it: then before its new state is built. The ledger, and so each agent's counts, is the
+process's own: with several replicas an observation is scored against the versions its replica
+served, and ``GET /v1/agents/{id}`` reports the counts of the replica that answers it.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections import OrderedDict, deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from reach.sets import BoxTubeSet, FRTSet
+from service.flows.batch import box_clearances, tube_clearances
+from service.runtime.scheduler import FRTKey
+
+#: Slack on "the horizon covers t" (float round-off of timestamps on a 0.1 s grid).
+HORIZON_SLACK_S = 1e-9
+
+
+@dataclass(frozen=True, slots=True)
+class ServedVersion:
+    """One version of an agent's sets, as the audit needs it."""
+
+    version: int
+    key: FRTKey
+    #: The observation time of the version and the end of its horizon.
+    t0: float
+    horizon_end: float
+    collision_radius: float
+    agent_class: str
+    #: The version's conservative set (contains its exact set).
+    conservative: FRTSet
+
+    def covers(self, t: float) -> bool:
+        return self.t0 < t <= self.horizon_end + HORIZON_SLACK_S
+
+
+class _AgentAudit:
+    """One agent's recent versions, its counts (``fold``) and when it was last recorded."""
+
+    __slots__ = ("counts", "recorded_at", "versions")
+
+    def __init__(self, max_versions: int) -> None:
+        self.versions: deque[ServedVersion] = deque(maxlen=max_versions)
+        self.counts: dict[str, Any] | None = None
+        self.recorded_at = 0.0
+
+
+class AuditLedger:
+    """Per agent, its latest ``max_versions`` served versions whose horizon has not ended before
+    the latest (oldest first) and its audit counts, for at most ``max_agents`` agents recorded
+    within ``ttl_s`` (the least recently recorded go first). Thread-safe."""
+
+    def __init__(
+        self,
+        max_versions: int,
+        max_agents: int,
+        ttl_s: float = math.inf,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self._max_versions = max_versions
+        self._max_agents = max_agents
+        self._ttl_s = ttl_s
+        self._clock = clock
+        self._agents: OrderedDict[str, _AgentAudit] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def covering(self, agent_id: str, t: float) -> list[ServedVersion]:
+        """The agent's versions whose horizon covers ``t``, oldest first."""
+        with self._lock:
+            entry = self._agents.get(agent_id)
+            return [v for v in entry.versions if v.covers(t)] if entry else []
+
+    def record(self, agent_id: str, served: ServedVersion) -> None:
+        """Add the agent's new version (starting afresh if it is not above the last recorded: the
+        agent was created again)."""
+        now = self._clock()
+        with self._lock:
+            entry = self._agents.pop(agent_id, None)
+            if entry is None or (entry.versions and entry.versions[-1].version >= served.version):
+                entry = _AgentAudit(self._max_versions)
+            versions = entry.versions
+            # Timestamps increase per agent: a horizon ended before this version covers nothing.
+            while versions and versions[0].horizon_end + HORIZON_SLACK_S < served.t0:
+                versions.popleft()
+            versions.append(served)
+            entry.recorded_at = now
+            self._agents[agent_id] = entry
+            agents = self._agents
+            while len(agents) > self._max_agents or (
+                agents and next(iter(agents.values())).recorded_at < now - self._ttl_s
+            ):
+                agents.popitem(last=False)  # the least recently recorded: expired, or over the cap
+
+    def add(self, agent_id: str, scored: Sequence[Scored], t: float) -> None:
+        """Count the positions ``scored`` at ``t`` into the agent's counts (``fold``)."""
+        with self._lock:
+            entry = self._agents.get(agent_id)
+            if entry is not None:
+                entry.counts = fold(entry.counts, scored, t)
+
+    def counts(self, agent_id: str) -> dict[str, Any] | None:
+        """The agent's counts (``fold``), None if nothing was audited."""
+        with self._lock:
+            entry = self._agents.get(agent_id)
+            return None if entry is None or entry.counts is None else dict(entry.counts)
+
+    def forget(self, agent_id: str) -> None:
+        with self._lock:
+            self._agents.pop(agent_id, None)
+
+    def __len__(self) -> int:
+        with self._lock:
+            return len(self._agents)
+
+
+@dataclass(frozen=True, slots=True)
+class Scored:
+    """One audited position: the distance from the observed position to K of ``version`` at the
+    observation's time (negative inside), and the version's collision radius."""
+
+    version: int
+    t_rel: float
+    distance_to_k: float
+    collision_radius: float
+    exact: bool
+    agent_class: str
+
+    @property
+    def in_k(self) -> bool:
+        return self.distance_to_k <= 0.0
+
+    @property
+    def in_c(self) -> bool:
+        return self.distance_to_k <= self.collision_radius
+
+    @property
+    def source(self) -> str:
+        return "exact" if self.exact else "conservative"
+
+
+def score(
+    x: float,
+    y: float,
+    t: float,
+    versions: Sequence[ServedVersion],
+    exact_of: Callable[[FRTKey], FRTSet | None],
+) -> list[Scored]:
+    """The position (x, y) observed at ``t`` against each of ``versions`` (which cover ``t``),
+    each from its exact set if ``exact_of`` has it with the tube drawn, else its conservative set.
+    The box sets are measured together in one vectorised call, the exact ones in another."""
+    xy = np.array([[x, y]], dtype=np.float64)
+    t_rel = list((t - np.array([v.t0 for v in versions]))[:, None])  # one row per version
+    chosen: list[FRTSet] = []
+    exact: list[bool] = []
+    for v in versions:
+        frt = exact_of(v.key)
+        usable = (
+            frt is not None
+            and frt.clearance_from_tubes
+            and not frt.missing_tubes([frt.tube_index(t - v.t0)])
+        )
+        chosen.append(frt if usable else v.conservative)  # type: ignore[arg-type]
+        exact.append(usable)
+    distance = np.empty(len(versions))
+    boxes = [i for i, s in enumerate(chosen) if isinstance(s, BoxTubeSet)]
+    tubes = [i for i, s in enumerate(chosen) if exact[i]]
+    other = [i for i in range(len(chosen)) if i not in set(boxes) | set(tubes)]
+    for group, measure in ((boxes, box_clearances), (tubes, tube_clearances)):
+        if group:
+            found = measure([chosen[i] for i in group], xy, [t_rel[i] for i in group])
+            distance[group] = [float(d[0]) for d in found]
+    for i in other:  # e.g. the union of a multi-modal agent's box sets
+        distance[i] = float(chosen[i].clearance(xy, t_rel[i])[0])
+    return [
+        Scored(
+            version=v.version,
+            t_rel=float(rel[0]),
+            distance_to_k=float(d),
+            collision_radius=v.collision_radius,
+            exact=e,
+            agent_class=v.agent_class,
+        )
+        for v, rel, d, e in zip(versions, t_rel, distance, exact, strict=True)
+    ]
+
+
+def fold(counts: dict[str, Any] | None, scored: Sequence[Scored], t: float) -> dict[str, Any]:
+    """An agent's audit counts after the positions ``scored`` at ``t``:
+    audited, missed in K and in C, how many came from exact sets, and the last miss (the worst of
+    the latest observation with one)."""
+    out = dict(counts) if counts else {"audited": 0, "missed_k": 0, "missed_c": 0, "exact": 0}
+    out.setdefault("last_miss", None)
+    out["audited"] += len(scored)
+    out["missed_k"] += sum(not s.in_k for s in scored)
+    out["missed_c"] += sum(not s.in_c for s in scored)
+    out["exact"] += sum(s.exact for s in scored)
+    misses = [s for s in scored if not s.in_k]
+    if misses:
+        worst = max(misses, key=lambda s: s.distance_to_k)
+        out["last_miss"] = {
+            "timestamp": t,
+            "frt_version": worst.version,
+            "t_rel_s": worst.t_rel,
+            "distance_outside_k_m": worst.distance_to_k,
+            "distance_outside_c_m": (
+                None if worst.in_c else worst.distance_to_k - worst.collision_radius
+            ),
+            "source": worst.source,
+        }
+    return out
+
+
+class RollingCoverage:
+    """Share of the last ``window`` audited positions inside K and inside C (fleet-wide)."""
+
+    def __init__(self, window: int) -> None:
+        self._k: deque[bool] = deque(maxlen=window)
+        self._c: deque[bool] = deque(maxlen=window)
+        self._in_k = 0
+        self._in_c = 0
+        self._lock = threading.Lock()
+
+    def add(self, scored: Sequence[Scored]) -> tuple[float, float]:
+        """Add positions; the coverage of K and of C over the window after them."""
+        with self._lock:
+            for s in scored:
+                if len(self._k) == self._k.maxlen:  # the oldest leaves as this one comes
+                    self._in_k -= self._k[0]
+                    self._in_c -= self._c[0]
+                self._k.append(s.in_k)
+                self._c.append(s.in_c)
+                self._in_k += s.in_k
+                self._in_c += s.in_c
+            n = len(self._k)
+            return (self._in_k / n, self._in_c / n) if n else (1.0, 1.0)

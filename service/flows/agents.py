@@ -13,11 +13,14 @@ misses move the gamma the new version's bounds are fitted with (``service.flows.
 from __future__ import annotations
 
 import asyncio
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from reach.agent_classes import AgentClass
 from reach.engine import FRTEngine, OutOfRangeError
+from reach.sets import FRTSet
 from service.api.errors import AgentNotFoundError, FieldError, StaleTimestampError
 from service.api.limits import check_prediction_steps
 from service.api.schemas import (
@@ -44,6 +47,7 @@ from service.flows.mode_states import (
     resolve_class,
 )
 from service.flows.modes import Mixture, validate_mixture
+from service.runtime.scheduler import FRTKey
 from service.runtime.services import Services
 from service.runtime.settings import Settings
 from service.runtime.store import AgentState
@@ -147,7 +151,7 @@ async def observe(
     # requests already waiting on the event loop go first, and checks in flight finish first.
     await services.priority.observation_turn()
     settings = services.settings
-    engine = services.require_engine()
+    services.require_engine()
     request, mixture = _prediction_form(request, settings)
     patch = request.config.model_dump(exclude_none=True) if request.config else {}
     previous = await services.store.get(agent_id)
@@ -158,79 +162,15 @@ async def observe(
     # Scored now only where the new bounds depend on it (adaptive gamma); else after the answer.
     adaptive = settings.audit and _coverage_target(settings, previous, patch) is not None
     scored = audit_position(services, agent_id, request, previous) if adaptive else None
-    built: list[Belief] = []  # the belief of each state built, the last one last
-
-    def build(prior: AgentState | None, mean: np.ndarray, cov: np.ndarray) -> AgentState:
-        overrides = {**(prior.config if prior else {}), **patch}
-        klass = resolve_class(agent_id, request.agent_class, prior, overrides)
-        config = effective_config(settings, overrides)
-        gamma_state = adapt_gamma(prior, scored, config) if scored is not None else None
-        if mixture is not None or (prior is not None and prior.modes is not None):
-            state, marginal = build_mode_state(
-                agent_id,
-                request,
-                prior,
-                mixture or Mixture(request.prediction.dt, np.ones(1), mean[None], cov[None]),
-                overrides,
-                config,
-                klass,
-                settings,
-                engine,
-            )
-            state.gamma_state = gamma_state
-            built.append(marginal)
-            return state
-        belief = _belief(prior, config["beta_low"])
-        action = request.observed_action
-        if action is not None and prior is not None:
-            prev_mean = np.asarray(prior.prediction["mean"][0], dtype=np.float64)
-            prev_cov = np.asarray(prior.prediction["cov"][0], dtype=np.float64)
-            observed = np.array([action.steering_rate, action.acceleration], dtype=np.float64)
-            belief = update_belief(belief, observed, prev_mean, prev_cov, config["epsilon"])
-        dt = request.prediction.dt
-        bounds = fit_bounds(
-            mean,
-            cov,
-            dt,
-            belief.beta,
-            config["gamma"],
-            config["bounds_fit"],
-            settings,
-            limits=class_limits(klass, settings),
-        )
-        if klass.name == "car":
-            check_ranges(engine, request.state.speed, bounds, bounds_field="prediction")
-        else:
-            check_class_ranges(engine, klass, request.state.speed, bounds)
-        built.append(belief)
-        return AgentState(
-            agent_id=agent_id,
-            timestamp=request.timestamp,
-            x=request.state.x,
-            y=request.state.y,
-            heading=request.state.heading,
-            speed=request.state.speed,
-            belief=belief.to_dict(),
-            prediction={"dt": dt, "mean": mean.tolist(), "cov": cov.tolist()},
-            control_bounds=[float(b) for b in bounds],
-            config=overrides,
-            frt_version=(prior.frt_version + 1) if prior else 1,
-            gamma_state=gamma_state,
-        )
-
-    def first_try() -> tuple[np.ndarray, np.ndarray, AgentState]:
-        if mixture is not None:
-            mean, cov = mixture.means[0], mixture.covs[0]
-        else:
-            mean, cov = validated_prediction(request.prediction, settings)
-        return mean, cov, build(previous, mean, cov)
-
-    mean, cov, candidate = first_try()
+    builder = _StateBuilder(services, agent_id, request, mixture, patch, scored)
+    if mixture is not None:
+        mean, cov = mixture.means[0], mixture.covs[0]
+    else:
+        mean, cov = validated_prediction(request.prediction, settings)
+    candidate = builder.build(previous, mean, cov)
 
     def apply(current: AgentState | None) -> AgentState:
-        if _same(current, previous):
-            return candidate
-        return build(current, mean, cov)
+        return candidate if _same(current, previous) else builder.build(current, mean, cov)
 
     state = await services.store.update(agent_id, apply, timestamp=request.timestamp)
     job = services.job_for(state)
@@ -238,32 +178,13 @@ async def observe(
     # Built now, so that checks finding the exact set late look it up; the audit keeps it.
     conservative = services.conservative(job)
     if settings.audit:
-        services.audit.record(
-            agent_id,
-            ServedVersion(
-                version=state.frt_version,
-                key=job.key,
-                t0=state.timestamp,
-                horizon_end=state.timestamp + services.horizon_s(),
-                collision_radius=float(
-                    effective_config(settings, state.config)["collision_radius"]
-                ),
-                agent_class=str(state.config.get("agent_class", "car")),
-                conservative=conservative,
-            ),
-        )
-        if scored is None:
-            state_in = request.state
-            asyncio.get_running_loop().call_soon(
-                services.audit_later, agent_id, state_in.x, state_in.y, request.timestamp
-            )
-        else:
-            services.take_audit(agent_id, scored, request.timestamp)
+        _record_for_audit(services, state, job.key, conservative, request, scored)
     if wait_frt_s > 0:
         await services.exact_within(job, wait_frt_s)
     # The belief just built, unless the stored one is another (from_dict would give the same arrays:
     # a stored belief is normalised already, and normalising it again changes no bit).
-    belief = built[-1] if built[-1].to_dict() == state.belief else Belief.from_dict(state.belief)
+    last = builder.built[-1]
+    belief = last if last.to_dict() == state.belief else Belief.from_dict(state.belief)
     probs, _ = belief_out(belief)
     return ObservationResponse(
         agent_id=agent_id,
@@ -278,6 +199,131 @@ async def observe(
         modes=modes_out(state.modes),
         mode_mass=state.modes["mode_mass"] if state.modes else None,
     )
+
+
+@dataclass
+class _StateBuilder:
+    """Builds the agent's next state from the one before it (``prior``) and this observation:
+    the belief updated by the observed action, the bounds of the new prediction, their ranges
+    checked. ``built`` holds the belief of each state built, the last one last."""
+
+    services: Services
+    agent_id: str
+    request: ObservationRequest
+    mixture: Mixture | None
+    patch: dict[str, Any]
+    scored: list[Scored] | None
+    built: list[Belief] = field(default_factory=list)
+
+    def build(self, prior: AgentState | None, mean: np.ndarray, cov: np.ndarray) -> AgentState:
+        settings, request = self.services.settings, self.request
+        overrides = {**(prior.config if prior else {}), **self.patch}
+        klass = resolve_class(self.agent_id, request.agent_class, prior, overrides)
+        config = effective_config(settings, overrides)
+        gamma_state = adapt_gamma(prior, self.scored, config) if self.scored is not None else None
+        if self.mixture is not None or (prior is not None and prior.modes is not None):
+            one_mode = Mixture(request.prediction.dt, np.ones(1), mean[None], cov[None])
+            state, marginal = build_mode_state(
+                self.agent_id,
+                request,
+                prior,
+                self.mixture or one_mode,
+                overrides,
+                config,
+                klass,
+                settings,
+                self.services.require_engine(),
+            )
+            state.gamma_state = gamma_state
+            self.built.append(marginal)
+            return state
+        belief = self._updated_belief(prior, config)
+        bounds = self._bounds(mean, cov, belief, config, klass)
+        self.built.append(belief)
+        return AgentState(
+            agent_id=self.agent_id,
+            timestamp=request.timestamp,
+            x=request.state.x,
+            y=request.state.y,
+            heading=request.state.heading,
+            speed=request.state.speed,
+            belief=belief.to_dict(),
+            prediction={"dt": request.prediction.dt, "mean": mean.tolist(), "cov": cov.tolist()},
+            control_bounds=[float(b) for b in bounds],
+            config=overrides,
+            frt_version=(prior.frt_version + 1) if prior else 1,
+            gamma_state=gamma_state,
+        )
+
+    def _updated_belief(self, prior: AgentState | None, config: dict[str, Any]) -> Belief:
+        """The prior's belief after the observed action, scored against the first step of the
+        prior's prediction (paper, the beta filter)."""
+        belief = _belief(prior, config["beta_low"])
+        action = self.request.observed_action
+        if action is None or prior is None:
+            return belief
+        prev_mean = np.asarray(prior.prediction["mean"][0], dtype=np.float64)
+        prev_cov = np.asarray(prior.prediction["cov"][0], dtype=np.float64)
+        observed = np.array([action.steering_rate, action.acceleration], dtype=np.float64)
+        return update_belief(belief, observed, prev_mean, prev_cov, config["epsilon"])
+
+    def _bounds(
+        self,
+        mean: np.ndarray,
+        cov: np.ndarray,
+        belief: Belief,
+        config: dict[str, Any],
+        klass: AgentClass,
+    ) -> np.ndarray:
+        """The new prediction's control bounds within the class's limits, their ranges checked."""
+        settings, engine = self.services.settings, self.services.require_engine()
+        bounds = fit_bounds(
+            mean,
+            cov,
+            self.request.prediction.dt,
+            belief.beta,
+            config["gamma"],
+            config["bounds_fit"],
+            settings,
+            limits=class_limits(klass, settings),
+        )
+        if klass.name == "car":
+            check_ranges(engine, self.request.state.speed, bounds, bounds_field="prediction")
+        else:
+            check_class_ranges(engine, klass, self.request.state.speed, bounds)
+        return bounds
+
+
+def _record_for_audit(
+    services: Services,
+    state: AgentState,
+    key: FRTKey,
+    conservative: FRTSet,
+    request: ObservationRequest,
+    scored: list[Scored] | None,
+) -> None:
+    """Keep the new version for auditing later positions, and audit this one: after the answer,
+    or at once where it was scored already (adaptive gamma)."""
+    config = effective_config(services.settings, state.config)
+    services.audit.record(
+        state.agent_id,
+        ServedVersion(
+            version=state.frt_version,
+            key=key,
+            t0=state.timestamp,
+            horizon_end=state.timestamp + services.horizon_s(),
+            collision_radius=float(config["collision_radius"]),
+            agent_class=str(state.config.get("agent_class", "car")),
+            conservative=conservative,
+        ),
+    )
+    if scored is None:
+        position = request.state
+        asyncio.get_running_loop().call_soon(
+            services.audit_later, state.agent_id, position.x, position.y, request.timestamp
+        )
+    else:
+        services.take_audit(state.agent_id, scored, request.timestamp)
 
 
 def _coverage_target(

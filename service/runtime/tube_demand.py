@@ -3,10 +3,12 @@
 A time-indexed check compares each point at time t with the tube up to t (API.md); the worker that
 computes an agent's exact set draws those tubes before sending it back
 (``service.runtime.exact_worker.ExactTask.tubes_upto``), so the check finds them drawn and answers
-from the exact set. Drawing a tube costs about a tenth of the set itself, so only the tubes this
-agent's checks have asked for are drawn: up to the largest index asked so far (a planner's
-trajectory spans the same horizon check after check). An agent no check has asked about yet gets
-every tube; one checked only against the whole tube gets none beyond it.
+from the exact set. The set is ready only once they are drawn, and drawing every tube costs about
+as much as the set itself, so only the tubes this agent's checks have asked for are drawn: up to
+the largest index asked so far (a planner's trajectory spans the same horizon check after check).
+An agent no check has asked about yet, or one checked only against the whole tube, gets none
+beyond the whole tube: its first time-indexed check draws what it needs on the event loop within
+its budget (``service.flows.tube_builder``) and names the tubes its next versions come with.
 """
 
 from __future__ import annotations
@@ -14,8 +16,8 @@ from __future__ import annotations
 import threading
 from collections import OrderedDict
 
-#: ``upto`` of an agent no check has named yet: every tube.
-EVERY_TUBE = 1_000_000
+#: ``upto`` of an agent no time-indexed check has named yet: no tube beyond the whole one.
+NO_TUBES = -1
 
 
 class TubeDemand:
@@ -37,9 +39,9 @@ class TubeDemand:
                 self._largest.popitem(last=False)
 
     def upto(self, agent_id: str) -> int:
-        """Draw the tubes 0..upto of the agent's next set (EVERY_TUBE if no check named it)."""
+        """Draw the tubes 0..upto of the agent's next set (NO_TUBES if no check named it)."""
         with self._lock:
-            return self._largest.get(agent_id, EVERY_TUBE)
+            return self._largest.get(agent_id, NO_TUBES)
 
     def forget(self, agent_id: str) -> None:
         with self._lock:

@@ -161,6 +161,7 @@ def test_forget_drops_an_agents_sets(scheduler: FRTScheduler) -> None:
 
 
 def test_queued_sets_are_not_waited_for_by_collision_checks(scheduler: FRTScheduler) -> None:
+    """Before any set has been timed, a queued set's turn cannot be foreseen: not waited for."""
     gate = threading.Event()
     scheduler.submit(key("busy", 1), lambda: gate.wait(5))  # occupies the only worker
     scheduler.submit(key("q", 1), lambda: "late")  # queued behind it
@@ -171,6 +172,24 @@ def test_queued_sets_are_not_waited_for_by_collision_checks(scheduler: FRTSchedu
         assert await scheduler.wait(key("q", 1), lambda: "late", 5.0) == "late"
 
     asyncio.run(scenario())
+
+
+def test_a_queued_set_is_waited_for_when_its_turn_is_due(scheduler: FRTScheduler) -> None:
+    """At the workers' recent pace (here: 0.1 s per set, one worker) the set queued right behind
+    a running one is due in about 0.2 s, within a 0.5 s wait, so a check waits for it; the one
+    queued behind it is due in about 0.3 s, past a 0.15 s wait."""
+    gate = threading.Event()
+    scheduler._typical_s = 0.1
+    scheduler.submit(key("busy", 1), lambda: gate.wait(5))  # occupies the only worker
+    scheduler.submit(key("q", 1), lambda: "first")
+    scheduler.submit(key("r", 1), lambda: "second")
+    finish = scheduler.queued_finish_s()
+    assert finish[key("r", 1)] > finish[key("q", 1)] > 0.0
+    assert scheduler.waitable(key("r", 1), lambda: "second", 0.15) is None
+    waited = scheduler.waitable(key("q", 1), lambda: "first", 0.5)
+    assert waited is not None and not waited.done()
+    gate.set()
+    assert waited.result(5) == "first"
 
 
 def test_a_running_set_not_due_within_the_wait_is_not_waited_for(scheduler: FRTScheduler) -> None:

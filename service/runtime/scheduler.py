@@ -20,7 +20,9 @@ from __future__ import annotations
 import asyncio
 import functools
 import hashlib
+import heapq
 import logging
+import math
 import struct
 import threading
 import time
@@ -275,8 +277,8 @@ class FRTScheduler:
         self, key: FRTKey, compute: Callable[[], Any], timeout_s: float
     ) -> Future[Any] | None:
         """For a collision check, without awaiting: the future of ``key``'s set if it may be ready
-        within ``timeout_s`` (done, or running and due at the workers' recent pace), else ``None``
-        (queued behind others, or too slow). Starts computing it if nobody has. A check of many
+        within ``timeout_s`` at the workers' recent pace (done; running and due; or queued and
+        its turn due, :meth:`queued_finish_s`), else ``None``. Starts computing it if nobody has. A check of many
         agents then awaits the few futures together instead of one task per agent."""
         return self.waitable_many([(key, compute)], timeout_s)[0]
 
@@ -290,18 +292,43 @@ class FRTScheduler:
         for label, count in (("pending", under_way), ("miss", len(jobs) - under_way)):
             if count:
                 self._metrics.frt_cache.labels(label).inc(count)
+        futures = [self.submit(key, compute) for key, compute in jobs]
+        queued_finish = self.queued_finish_s() if any(not f.running() for f in futures) else {}
         out: list[Future[Any] | None] = []
-        for key, compute in jobs:
-            future = self.submit(key, compute)
+        for (key, _), future in zip(jobs, futures, strict=True):
             if future.cancelled():
                 out.append(None)
             elif future.done():
                 out.append(future)
-            elif not future.running() or self.expected_remaining_s(key) > timeout_s:
-                out.append(None)
+            elif future.running():
+                out.append(future if self.expected_remaining_s(key) <= timeout_s else None)
             else:
-                out.append(future)
+                out.append(future if queued_finish.get(key, math.inf) <= timeout_s else None)
         return out
+
+    def queued_finish_s(self) -> dict[FRTKey, float]:
+        """About how long until each queued exact set is done, at the workers' recent pace: the
+        queue taken in order by the first worker free (a running exact set's worker when it is
+        due; a worker refining is taken as busy beyond any wait). Empty while no set has been
+        timed here."""
+        with self._lock:
+            typical = self._typical_s
+            if typical <= 0.0 or self._executor is None:
+                return {}
+            now = time.perf_counter()
+            free = [max(self._started.get(k, now) + typical - now, 0.0) for k in self._running]
+            idle = self._workers - len(self._running) - len(self._refinements.running)
+            free += [0.0] * max(idle, 0)
+            queued = list(self._queue.values())
+        heapq.heapify(free)
+        finish: dict[FRTKey, float] = {}
+        for key in queued:
+            if not free:
+                break
+            done = heapq.heappop(free) + typical
+            finish[key] = done
+            heapq.heappush(free, done)
+        return finish
 
     def expected_remaining_s(self, key: FRTKey) -> float:
         """About how long until the running set ``key`` is done (0 if unknown or not running)."""

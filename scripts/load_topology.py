@@ -60,6 +60,9 @@ COUNTERS = {
     'frt_conservative_answers_total{reason="tubes"}': "tubes",
     'frt_compute_seconds_count{kind="exact"}': "exact_sets",
     'frt_compute_seconds_sum{kind="exact"}': "exact_seconds",
+    'frt_exact_phase_seconds_sum{phase="queued"}': "queued_seconds",
+    'frt_exact_phase_seconds_count{phase="queued"}': "queued_sets",
+    'frt_exact_phase_seconds_sum{phase="transfer"}': "transfer_seconds",
 }
 
 
@@ -301,7 +304,9 @@ def line(r: dict[str, Any]) -> str:
         f"(not ready {s['not_ready']:.0f}, no time {s['no_time']:.0f}, tubes {s['tubes']:.0f}); "
         f"check p50/p99 {r['check_p50_ms']:.2f}/{r['check_p99_ms']:.2f} ms, late "
         f"{r['late_client']} client / {r['late_server']:.0f} server of {r['checks']}; "
-        f"{sets:.0f} exact sets computed, {1000 * s['exact_seconds'] / max(sets, 1):.1f} ms each; "
+        f"{sets:.0f} exact sets computed, {1000 * s['exact_seconds'] / max(sets, 1):.1f} ms each "
+        f"in a worker, {1000 * s['queued_seconds'] / max(s['queued_sets'], 1):.1f} ms queued, "
+        f"{1000 * s['transfer_seconds'] / max(sets, 1):.1f} ms in transfer; "
         f"floor {m['http_floor_p50_ms']:.2f} ms, exact set in-process "
         f"{m['exact_set_in_process_ms']:.1f} ms, load average {m['load_average_1min']:.2f}"
     )

@@ -29,7 +29,7 @@ import time
 from collections import OrderedDict
 from collections.abc import Callable, Hashable, Sequence
 from concurrent.futures import BrokenExecutor, CancelledError, Executor, Future, ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from service.runtime.metrics import Metrics
@@ -369,7 +369,10 @@ class FRTScheduler:
                     del self._pending[key]
                     continue
                 self._running.add(key)
-                self._started[key] = time.perf_counter()
+                job.dispatched = self._started[key] = time.perf_counter()
+                self._metrics.exact_phase_seconds.labels("queued").observe(
+                    job.dispatched - job.submitted
+                )
                 executor = self._executor
                 try:
                     handle = executor.submit(timed, job.compute)
@@ -489,6 +492,9 @@ class FRTScheduler:
             return
         if error is None:
             self._metrics.frt_compute_seconds.labels("exact").observe(seconds)
+            if job.dispatched is not None:
+                transfer = time.perf_counter() - job.dispatched - seconds
+                self._metrics.exact_phase_seconds.labels("transfer").observe(max(transfer, 0.0))
             if not discard:
                 self._queue_refinement(key, job.compute, result)
                 self._dispatch()
@@ -518,7 +524,7 @@ class FRTScheduler:
             self._refinements.clear()
             self._pending[key] = job
             self._running.add(key)
-            self._started[key] = time.perf_counter()
+            job.dispatched = self._started[key] = time.perf_counter()
             handle = self._executor.submit(timed, job.compute)
         broken.shutdown(wait=False, cancel_futures=True)
         handle.add_done_callback(functools.partial(self._finished, key))
@@ -530,6 +536,9 @@ class FRTScheduler:
 class _Job:
     compute: Callable[[], Any]
     future: Future[Any]
+    #: When it was submitted and when a worker got it (``time.perf_counter()``).
+    submitted: float = field(default_factory=time.perf_counter)
+    dispatched: float | None = None
 
 
 def timed(compute: Callable[[], Any]) -> tuple[Any, float]:

@@ -57,6 +57,11 @@ class FRTKey:
 #: garbage collector to walk (tens of polygons per exact set once its tubes are drawn).
 VERSIONS_PER_AGENT = 2
 
+#: Exact sets start newest first; the oldest queued goes next all the same once it has waited
+#: this long, so that an agent observed rarely (whose queued version stays current) is not passed
+#: over for ever by agents observed often, whose queued versions are replaced by newer ones.
+EXACT_OLDEST_AFTER_S = 0.5
+
 
 class LRUCache:
     """A small thread-safe least-recently-used map of FRT sets by :class:`FRTKey`, holding at most
@@ -143,10 +148,11 @@ class FRTScheduler:
     at most ``workers`` at a time.
 
     Sets wait in the scheduler's own queue, one per agent, until a worker is free: a newer version
-    of an agent replaces its queued older one in place (so an agent observed faster than its sets
-    can be computed is not starved), and a version older than one queued or running for the same
-    agent is not started at all. Only then does a set go to the executor, which therefore never holds
-    a superseded one.
+    of an agent replaces its queued older one, and a version older than one queued or running for
+    the same agent is not started at all. Only then does a set go to the executor, which therefore
+    never holds a superseded one. The set submitted last goes first (``EXACT_OLDEST_AFTER_S``):
+    when the workers fall behind, the version observed last has the most of its life left to be
+    served, while one that waited is the likeliest to be superseded before it is ready.
     """
 
     def __init__(self, *, workers: int, cache_size: int, metrics: Metrics) -> None:
@@ -244,7 +250,8 @@ class FRTScheduler:
                 if older is not None:
                     self._pending.pop(older).future.cancel()
             self._pending[key] = _Job(compute, future)
-            self._queue[slot] = key  # an existing slot keeps its place
+            self._queue[slot] = key
+            self._queue.move_to_end(slot)  # the newest at the end, taken first
             if key.agent_id:
                 self._refinements.note_version(key)
         self._dispatch()
@@ -308,7 +315,7 @@ class FRTScheduler:
 
     def queued_finish_s(self) -> dict[FRTKey, float]:
         """About how long until each queued exact set is done, at the workers' recent pace: the
-        queue taken in order by the first worker free (a running exact set's worker when it is
+        queue taken newest first by the first worker free (a running exact set's worker when it is
         due; a worker refining is taken as busy beyond any wait). Empty while no set has been
         timed here."""
         with self._lock:
@@ -319,7 +326,7 @@ class FRTScheduler:
             free = [max(self._started.get(k, now) + typical - now, 0.0) for k in self._running]
             idle = self._workers - len(self._running) - len(self._refinements.running)
             free += [0.0] * max(idle, 0)
-            queued = list(self._queue.values())
+            queued = list(reversed(self._queue.values()))  # newest first, as dispatched
         heapq.heapify(free)
         finish: dict[FRTKey, float] = {}
         for key in queued:
@@ -363,7 +370,9 @@ class FRTScheduler:
                 if not self._queue:
                     self._dispatch_refinements()
                     return
-                _, key = self._queue.popitem(last=False)
+                oldest = next(iter(self._queue.values()))
+                waited = time.perf_counter() - self._pending[oldest].submitted
+                _, key = self._queue.popitem(last=waited < EXACT_OLDEST_AFTER_S)
                 job = self._pending[key]
                 if not job.future.set_running_or_notify_cancel():
                     del self._pending[key]

@@ -34,6 +34,10 @@ it with httpx from this process. Prints medians and p99 for:
 7. serialising a 50-agent collision answer in-process, the way the service does
    (``service.api.routes.model_json``) and the way FastAPI does for a returned model (validated again
    against ``response_model``, then ``jsonable_encoder`` and ``json.dumps``), alternately;
+8. the load mix: ``make load``'s defaults (``scripts/load.py``: 2 planners checking all of 10
+   humans at 10 Hz with 20-point time-indexed trajectories, each human observed at 5 Hz) for
+   ``--load-seconds``: a check-all round end to end, the share of per-agent answers from exact
+   sets and the late rounds, at the client and at the server;
 
 and, side by side in the same run, the naive approach: building the set by evaluating the full
 network on a dense grid for every query (no cache, no distilled projection).
@@ -49,6 +53,7 @@ import os
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Awaitable, Callable
 from contextlib import contextmanager
@@ -541,6 +546,35 @@ def server_counters(url: str) -> dict[str, int]:
     return counts
 
 
+def bench_load_mix(url: str, model: Path, seconds: float) -> dict:
+    """``make load``'s mix at its defaults (scripts/load.py: 2 planners checking all of 10 humans
+    at 10 Hz with 20-point time-indexed trajectories, each human observed at 5 Hz) for
+    ``seconds``: a check-all round end to end, the share of per-agent answers from exact sets,
+    late rounds at the client and at the server."""
+    with tempfile.TemporaryDirectory() as folder:
+        out = Path(folder) / "load.json"
+        subprocess.run(
+            [sys.executable, str(ROOT / "scripts" / "load.py"), "--url", url,
+             "--duration", str(seconds), "--model", str(model), "--out", str(out)],
+            check=False, capture_output=True, timeout=seconds + 300,
+        )  # fmt: skip
+        load = json.loads(out.read_text())
+    check = load["operations"]["check"]
+    deadline = load["deadline"]
+    return {
+        "seconds": seconds,
+        "n": check["count"],
+        "p50_ms": check["p50_ms"],
+        "p99_ms": check["p99_ms"],
+        "exact_share": deadline["exact_share"],
+        "answers": deadline["answers"],
+        "late_end_to_end": deadline["client_over_deadline"],
+        "late_server_side": deadline["server_misses"],
+        "errors": load["errors"],
+        "fallback_area_ratio": load["fallback_area_ratio"],
+    }
+
+
 def bench_naive(model: Path, n: int) -> dict:
     """The naive approach: per query, the set from the full network on a dense grid, no cache."""
     from models.runtime import ValueModel
@@ -716,6 +750,12 @@ def main() -> None:
     parser.add_argument("--sustained-seconds", type=float, default=20.0)
     parser.add_argument("--naive", type=int, default=10)
     parser.add_argument(
+        "--load-seconds",
+        type=float,
+        default=30.0,
+        help="seconds of make load's mix (scripts/load.py at its defaults); 0: not run",
+    )
+    parser.add_argument(
         "--sustained-only",
         action="store_true",
         help="run only the sustained case (for comparing revisions run after run)",
@@ -771,6 +811,10 @@ def main() -> None:
                 results.setdefault(SUSTAINED_KEYS[transport], sustained)
         if args.sustained_runs > 1:
             results["sustained_runs"] = runs
+        if not (args.sustained_only or args.modes_only) and args.load_seconds > 0:
+            results["load_mix_check_all_10"] = bench_load_mix(
+                url, args.model.resolve(), args.load_seconds
+            )
     if not (args.sustained_only or args.modes_only):
         results.update(bench_exact_in_process(args.model.resolve(), args.observations))
         results.update(bench_serialisation(args.checks))
@@ -786,6 +830,14 @@ def main() -> None:
     for transport, key in SUSTAINED_KEYS.items():
         if key in results:
             print_sustained(results[key], transport, width)
+    if "load_mix_check_all_10" in results:
+        mix = results["load_mix_check_all_10"]
+        print(
+            f"load mix (make load's defaults, {mix['seconds']:g} s): exact answers "
+            f"{100 * (mix['exact_share'] or 0):.1f} % of {mix['answers']}, late rounds "
+            f"{mix['late_end_to_end']} end to end (at the server {mix['late_server_side']}) of "
+            f"{mix['n']}, errors {mix['errors']}"
+        )
     for transport, summaries in results.get("sustained_runs", {}).items():
         late = [r["deadline_misses_end_to_end"] for r in summaries]
         server = [r["deadline_misses_server_side"] for r in summaries]

@@ -121,8 +121,8 @@ def stop(proc: subprocess.Popen[bytes], sig: int = signal.SIGTERM) -> None:
 
 
 @contextmanager
-def servers(args: argparse.Namespace, workdir: Path) -> Iterator[tuple[str, list[str]]]:
-    """Start the topology; yields (the URL clients use, every server's own URL)."""
+def servers(args: argparse.Namespace, workdir: Path) -> Iterator[tuple[str, list[str], list[int]]]:
+    """Start the topology; yields (the URL clients use, every server's own URL, their pids)."""
     procs: list[tuple[subprocess.Popen[bytes], int]] = []
     env = {k: v for k, v in os.environ.items() if not k.startswith("FRT_")}
     env["FRT_MODEL_PATH"] = str(args.model.resolve())
@@ -162,8 +162,9 @@ def servers(args: argparse.Namespace, workdir: Path) -> Iterator[tuple[str, list
         for address, proc, log in addresses:
             wait_http(f"http://{address}/readyz", proc, log, 240.0)
         own = [f"http://{address}" for address, _, _ in addresses]
+        pids = [proc.pid for _, proc, _ in addresses]
         if args.topology == "single":
-            yield own[0], own
+            yield own[0], own, pids
             return
         from tests.test_deploy_files import NGINX_CONF, render_nginx_conf
 
@@ -187,7 +188,7 @@ def servers(args: argparse.Namespace, workdir: Path) -> Iterator[tuple[str, list
         )  # fmt: skip
         procs.append((nginx_proc, signal.SIGQUIT))
         wait_http(f"http://127.0.0.1:{front}/readyz", nginx_proc, log, 30.0)
-        yield f"http://127.0.0.1:{front}", own
+        yield f"http://127.0.0.1:{front}", own, pids
     finally:
         for proc, sig in reversed(procs):
             stop(proc, sig)
@@ -239,7 +240,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     workdir = Path(tempfile.mkdtemp(prefix="frt-topology-"))
     workdir.chmod(0o755)  # nginx's workers (user nobody) write temp files here
     try:
-        with servers(args, workdir) as (url, own):
+        with servers(args, workdir) as (url, own, _):
             reference_ms = exact_reference(args.model)
             floor = http_floor(url)
             load_avg = os.getloadavg()[0]

@@ -27,7 +27,8 @@ it with httpx from this process. Prints medians and p99 for:
 5. the HTTP floor: GET /healthz through the same client, server and middleware (what a request
    costs with no work in the route), next to the warm check;
 6. the exact set alone, in-process, for a moving, a parked and a wide-bound car (for the moving car
-   also with the projection network evaluated at every lattice node, i.e. without
+   also with the tubes make load's time-indexed checks need drawn, as a worker sends it, and with
+   the projection network evaluated at every lattice node, i.e. without
    ``reach.refine``; for the wide one also cut to the speed-coupled partition, the service's
    background refinement of such sets, ``FRTEngine.exact(notch_cut=True)``, by its first stage
    and by its last, ``reach.engine.NOTCH_STAGES``);
@@ -596,6 +597,10 @@ def bench_naive(model: Path, n: int) -> dict:
 
 #: Exact-set cases timed in-process (v_start, bounds in contract order): a parked car used to take
 #: tens of seconds here (GEOS unions of near-identical slices).
+#: The tubes a worker draws for make load's checks: 20 points 0.1 s apart, up to ~0.2 s after the
+#: agent's observation, reach tube 21 (``service.runtime.tube_demand``).
+LOAD_MIX_TUBES = 21
+
 EXACT_CASES = {
     "exact_set_in_process_moving_8mps": (8.0, [-0.15, -1.5, -0.15, -1.5, 0.15, 1.5, 0.15, 1.5]),
     "exact_set_in_process_parked": (0.0, [-0.05, -0.2, -0.05, -0.2, 0.05, 0.2, 0.05, 0.2]),
@@ -692,11 +697,17 @@ def bench_exact_in_process(model: Path, n: int) -> dict[str, dict]:
         b = np.array(bounds)
 
         def run(
-            e: FRTEngine, stage: int | None = None, v: float = v_start, b: np.ndarray = b
+            e: FRTEngine,
+            stage: int | None = None,
+            v: float = v_start,
+            b: np.ndarray = b,
+            tubes: int = -1,
         ) -> Callable[[], object]:
-            return lambda: e.exact(Pose(0.0, 0.0, 0.0), v, b, notch_stage=stage)
+            return lambda: e.exact(Pose(0.0, 0.0, 0.0), v, b, notch_stage=stage, tubes_upto=tubes)
 
         variants = {name: run(engine)}
+        if "moving" in name:  # as a worker sends it for make load's 2 s time-indexed checks
+            variants[f"{name}_with_load_mix_tubes"] = run(engine, tubes=LOAD_MIX_TUBES)
         if not network:
             variants[f"{name}_with_network"] = run(with_network)
         if "moving" in name:

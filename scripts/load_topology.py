@@ -28,6 +28,7 @@ import argparse
 import json
 import os
 import re
+import resource
 import shutil
 import signal
 import socket
@@ -224,6 +225,26 @@ def exact_reference(model: Path, repeats: int = 20) -> float:
     return statistics.median(times)
 
 
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU seconds of process ``pid`` so far (Linux ``/proc``; 0 if it is gone)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def children(pid: int) -> list[int]:
+    """The child processes of ``pid`` (its exact-set workers, for a server)."""
+    found: list[int] = []
+    for task in Path(f"/proc/{pid}/task").glob("*"):
+        try:
+            found += [int(c) for c in (task / "children").read_text().split()]
+        except OSError:
+            continue
+    return found
+
+
 def counters(urls: list[str]) -> dict[str, float]:
     """COUNTERS summed over every server."""
     total = dict.fromkeys(COUNTERS.values(), 0.0)
@@ -240,11 +261,14 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     workdir = Path(tempfile.mkdtemp(prefix="frt-topology-"))
     workdir.chmod(0o755)  # nginx's workers (user nobody) write temp files here
     try:
-        with servers(args, workdir) as (url, own, _):
+        with servers(args, workdir) as (url, own, pids):
             reference_ms = exact_reference(args.model)
             floor = http_floor(url)
             load_avg = os.getloadavg()[0]
             before = counters(own)
+            workers = [child for pid in pids for child in children(pid)]
+            cpu_before = (sum(map(cpu_seconds, pids)), sum(map(cpu_seconds, workers)))
+            harness_before = resource.getrusage(resource.RUSAGE_CHILDREN)
             out = workdir / "load.json"
             cmd = [
                 sys.executable, str(LOAD), "--url", url, "--duration", str(args.duration),
@@ -254,6 +278,15 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             ]  # fmt: skip
             done = subprocess.run(cmd, capture_output=True, text=True, timeout=args.duration + 300)
             after = counters(own)
+            harness_after = resource.getrusage(resource.RUSAGE_CHILDREN)
+            cpu = {
+                "servers": sum(map(cpu_seconds, pids)) - cpu_before[0],
+                "workers": sum(map(cpu_seconds, workers)) - cpu_before[1],
+                "load_harness": harness_after.ru_utime
+                + harness_after.ru_stime
+                - harness_before.ru_utime
+                - harness_before.ru_stime,
+            }
             if not out.exists():
                 raise RuntimeError(f"load.py wrote nothing:\n{done.stdout}\n{done.stderr}")
             load = json.loads(out.read_text())
@@ -280,6 +313,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "exact_share_client": load["deadline"]["exact_share"],
         "exact_share_server": server["exact"] / answers if answers else None,
         "server": server,
+        #: CPU seconds over the load, of the servers' own processes, of their exact-set workers
+        #: and of the load harness (the rest of the machine's two cores went to other work).
+        "cpu_seconds": cpu,
         "check_p50_ms": check.get("p50_ms"),
         "check_p99_ms": check.get("p99_ms"),
         "late_client": load["deadline"]["client_over_deadline"],
@@ -308,6 +344,9 @@ def line(r: dict[str, Any]) -> str:
         f"{sets:.0f} exact sets computed, {1000 * s['exact_seconds'] / max(sets, 1):.1f} ms each "
         f"in a worker, {1000 * s['queued_seconds'] / max(s['queued_sets'], 1):.1f} ms queued, "
         f"{1000 * s['transfer_seconds'] / max(sets, 1):.1f} ms in transfer; "
+        f"CPU s: servers {r['cpu_seconds']['servers']:.0f}, workers "
+        f"{r['cpu_seconds']['workers']:.0f}, load harness {r['cpu_seconds']['load_harness']:.0f}; "
+        f"{r['observations']} observations; "
         f"floor {m['http_floor_p50_ms']:.2f} ms, exact set in-process "
         f"{m['exact_set_in_process_ms']:.1f} ms, load average {m['load_average_1min']:.2f}"
     )

@@ -67,6 +67,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from scripts.exact_cost import LOAD_MIX_TUBES  # noqa: E402
+
 
 def free_port() -> int:
     with socket.socket() as s:
@@ -597,10 +599,6 @@ def bench_naive(model: Path, n: int) -> dict:
 
 #: Exact-set cases timed in-process (v_start, bounds in contract order): a parked car used to take
 #: tens of seconds here (GEOS unions of near-identical slices).
-#: The tubes a worker draws for make load's checks: 20 points 0.1 s apart, up to ~0.2 s after the
-#: agent's observation, reach tube 21 (``service.runtime.tube_demand``).
-LOAD_MIX_TUBES = 21
-
 EXACT_CASES = {
     "exact_set_in_process_moving_8mps": (8.0, [-0.15, -1.5, -0.15, -1.5, 0.15, 1.5, 0.15, 1.5]),
     "exact_set_in_process_parked": (0.0, [-0.05, -0.2, -0.05, -0.2, 0.05, 0.2, 0.05, 0.2]),

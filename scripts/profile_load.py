@@ -30,7 +30,6 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -38,7 +37,7 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from scripts.bench import LOAD_MIX_TUBES  # noqa: E402
+from scripts.exact_cost import mix_set_costs  # noqa: E402
 from scripts.load_topology import LOAD, counters, http_floor, servers  # noqa: E402
 
 #: Parts of a worker's work, by the first of these frames (function names) found on the stack,
@@ -143,55 +142,6 @@ def breakdown(raw: Path, rate: float) -> dict[str, Any]:
     }
 
 
-def in_process_costs(model: Path, repeats: int = 5) -> dict[str, float]:
-    """Median ms per set, in this process, of the sets the load harness's first ten humans get
-    (scripts/load.py's predictions, beta 0.5): the exact set alone, with the tubes its
-    time-indexed checks need (as a worker sends it), pickling and unpickling it."""
-    import pickle
-    import random
-    import statistics
-
-    from reach.frames import Pose
-    from scripts.fallback_cost import served_engine
-    from scripts.load import make_humans
-    from service.flows.agents import fit_bounds
-    from service.flows.bounds import validate_prediction
-    from service.runtime.exact_worker import ExactTask
-    from service.runtime.settings import Settings
-
-    engine = served_engine(model)
-    settings = Settings()
-    plain, with_tubes = [], []
-    for human in make_humans(10, "profile", 20.0, random.Random(0)):
-        p = human.prediction(0.0)
-        mean, cov = validate_prediction(p["mean"], p["cov"], p["dt"], 64)
-        bounds = fit_bounds(mean, cov, p["dt"], 0.5, settings.gamma, settings.bounds_fit, settings)
-        pose = Pose(human.x, human.y, human.heading)
-        plain.append(ExactTask(pose, human.speed, bounds, engine))
-        with_tubes.append(ExactTask(pose, human.speed, bounds, engine, tubes_upto=LOAD_MIX_TUBES))
-
-    def per_set(work: Callable[[], object], count: int) -> float:
-        times = []
-        for _ in range(repeats):
-            start = time.perf_counter()
-            work()
-            times.append((time.perf_counter() - start) / count * 1000.0)
-        return statistics.median(times)
-
-    sets = [task() for task in with_tubes]
-    blobs = [pickle.dumps(frt, 4) for frt in sets]
-    alone = per_set(lambda: [task() for task in plain], len(plain))
-    full = per_set(lambda: [task() for task in with_tubes], len(with_tubes))
-    return {
-        "exact set alone": alone,
-        "with the tubes checks need": full,
-        "of which the tubes": full - alone,
-        "pickling": per_set(lambda: [pickle.dumps(frt, 4) for frt in sets], len(sets)),
-        "unpickling": per_set(lambda: [pickle.loads(b) for b in blobs], len(blobs)),
-        "kB": sum(map(len, blobs)) / len(blobs) / 1000.0,
-    }
-
-
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--duration", type=float, default=40.0)
@@ -211,7 +161,7 @@ def main(argv: list[str] | None = None) -> int:
         print("profile_load.py: --duration (0, 300] s", file=sys.stderr)
         return 2
     py_spy = shutil.which("py-spy") or str(Path(sys.executable).parent / "py-spy")
-    in_process = in_process_costs(args.model)
+    in_process = mix_set_costs(args.model)
     workdir = Path(tempfile.mkdtemp(prefix="frt-profile-"))
     raw = workdir / "samples.txt"
     try:

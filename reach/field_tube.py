@@ -195,13 +195,18 @@ class FieldTubeSet(FRTSet):
 
     def __getstate__(self) -> dict[str, Any]:
         """What crosses a process boundary: everything but the lock and the caches rebuilt on
-        demand (the outer windows' and the notch cut's polygons, which would stay in the
-        receiver's cache as objects its garbage collector walks; a cut set's tubes are all drawn,
-        so the regions they were drawn from are not needed there)."""
+        demand (the outer windows' polygons and their unions, and the notch cut's polygons, which
+        would stay in the receiver's cache as objects its garbage collector walks and cost
+        pickling both ways; the tubes checks ask for are drawn before a set is sent, and a cut
+        set's are all drawn, so what they were drawn from is seldom needed there)."""
         state = vars(self).copy()
         del state["_lock"]
         state.update(
-            _outer_windows=None, _notch_regions={}, _notch_tubes={}, _last_minimum=(0, None)
+            _outer_windows=None,
+            _outer_unions={},
+            _notch_regions={},
+            _notch_tubes={},
+            _last_minimum=(0, None),
         )
         return state
 

@@ -224,8 +224,9 @@ class FRTScheduler:
 
     def submit(self, key: FRTKey, compute: Callable[[], Any]) -> Future[Any]:
         """Start computing ``key`` unless it is cached or under way. A queued older version of the
-        same agent is cancelled and this one takes its place in the queue; if a newer version is
-        queued or running, this one is not computed (the returned future is cancelled)."""
+        same agent is cancelled and this one is queued in its stead, to start first (newest
+        first); if a newer version is queued or running, this one is not computed (the returned
+        future is cancelled)."""
         with self._lock:
             if self._executor is None:
                 raise RuntimeError("scheduler not started")

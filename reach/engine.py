@@ -238,7 +238,7 @@ class FRTEngine:
         frt.evaluations = evaluations
         last = self.n_slices - 1
         # In increasing order: each tube (and each cut region) grows from the one before.
-        for j in range(last if frt.notch is not None else min(tubes_upto, last)):
+        for j in range(last if frt.notch is not None else min(tubes_upto + 1, last)):
             frt.tube(j)
         frt.tube(last)
         return frt

@@ -18,7 +18,7 @@ TARGET ?= 0.99
 PROFILE ?= av2
 FIND_LINKS := $(if $(wildcard /opt/wheels),--find-links /opt/wheels,)
 
-.PHONY: venv serve demo viewer-screenshot test lint format train train-smoke evaluate evaluate-full compare-authors network-diagnostics bench bench-sustained bench-audit load scale-test scenarios calibrate plots clean
+.PHONY: venv serve demo viewer-screenshot test lint format train train-smoke evaluate evaluate-full compare-authors network-diagnostics bench bench-sustained bench-audit load load-scale profile-load scale-test scenarios calibrate plots clean
 
 $(RUNTIME): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -100,6 +100,18 @@ bench-audit: $(STAMP)
 
 load: $(STAMP)
 	$(BIN)/python scripts/load.py --url $(URL) --duration $(DURATION)
+
+# make load's mix at 50 humans x 10 Hz, 2 planners x 10 Hz against a service started here: one
+# process, then three replicas behind nginx (make scale-test's topology); results/load_scale.json.
+load-scale: $(STAMP)
+	$(BIN)/python scripts/load_topology.py --topology single --humans 50 --obs-hz 10 \
+		--duration $(DURATION) --label "one process" --out results/load_scale.json
+	$(BIN)/python scripts/load_topology.py --topology replicas --replicas 3 --humans 50 \
+		--obs-hz 10 --duration $(DURATION) --label "three replicas" --out results/load_scale.json
+
+# Where the time goes under make load's mix: py-spy samples of the server and its workers.
+profile-load: $(STAMP)
+	$(BIN)/python scripts/profile_load.py --duration 40 --out results/profile_load.json
 
 scale-test: $(STAMP)
 	$(BIN)/python -m pytest -q tests/test_scale_out.py

@@ -196,9 +196,11 @@ class FRTEngine:
         bounds: np.ndarray,
         notch_cut: bool | None = None,
         notch_stage: int | None = None,
+        tubes_upto: int = -1,
     ) -> FieldTubeSet:
         """The model's set {W <= level} ∩ outer bound, sampled per slice (see FieldTubeSet); the
-        whole tube is built at once (collision checks need it first), the rest on demand.
+        tubes 0..``tubes_upto`` (in increasing order, each grown from the one before) and then the
+        whole tube are built at once (collision checks need them first), the rest on demand.
         ``notch_cut`` (default: the engine's) also cuts it to the speed-coupled partition where
         a notch is possible (``NotchCut``), and then draws every tube at once: a set cut in a
         worker process (the service's background refinement) reaches the server with them, so a
@@ -234,10 +236,11 @@ class FRTEngine:
             notch_possible=bool(cut.any()),
         )
         frt.evaluations = evaluations
-        frt.tube(self.n_slices - 1)
-        if frt.notch is not None:
-            for j in range(self.n_slices):  # in increasing order: each cut region from the last
-                frt.tube(j)
+        last = self.n_slices - 1
+        # In increasing order: each tube (and each cut region) grows from the one before.
+        for j in range(last if frt.notch is not None else min(tubes_upto + 1, last)):
+            frt.tube(j)
+        frt.tube(last)
         return frt
 
     def _grid(self, ob: OuterBound, rows: list[int]) -> _InstantGrid:

@@ -10,6 +10,7 @@ polygons and, where it is cut (``reach.notch``), inside the partition's region.
 
 from __future__ import annotations
 
+import functools
 import threading
 from dataclasses import dataclass
 from typing import Any, overload
@@ -55,8 +56,29 @@ class SliceField:
 
     def contour(self, lattice: Lattice) -> BaseGeometry:
         ny, nx = self.values.shape
-        xs, ys = lattice.xs(self.i0, self.i0 + nx), lattice.ys(self.k0, self.k0 + ny)
-        return _filled_contour(xs, ys, self.values, 0.0)
+        x, y = lattice_nodes(lattice, self.k0, self.i0, ny, nx)
+        return _filled_contour(x, y, self.values, 0.0)
+
+
+def lattice_nodes(
+    lattice: Lattice, k0: int, i0: int, ny: int, nx: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The x and y of the nodes of the window [k0:k0+ny, i0:i0+nx] as [ny, nx] arrays: views of
+    the whole lattice's, made once per lattice (a set contours tens of windows of one lattice),
+    the same values as ``np.meshgrid(lattice.xs(i0, i0 + nx), lattice.ys(k0, k0 + ny))``."""
+    if k0 < 0 or i0 < 0 or k0 + ny > lattice.ny or i0 + nx > lattice.nx:
+        return np.meshgrid(lattice.xs(i0, i0 + nx), lattice.ys(k0, k0 + ny))
+    x, y = _whole_lattice(lattice)
+    return x[k0 : k0 + ny, i0 : i0 + nx], y[k0 : k0 + ny, i0 : i0 + nx]
+
+
+@functools.lru_cache(maxsize=8)
+def _whole_lattice(lattice: Lattice) -> tuple[np.ndarray, np.ndarray]:
+    """Every node's x and y of ``lattice`` [ny, nx], read-only (shared by the contours drawn)."""
+    x, y = np.meshgrid(lattice.xs(0, lattice.nx), lattice.ys(0, lattice.ny))
+    x.flags.writeable = False
+    y.flags.writeable = False
+    return x, y
 
 
 class SliceFields:
@@ -173,13 +195,18 @@ class FieldTubeSet(FRTSet):
 
     def __getstate__(self) -> dict[str, Any]:
         """What crosses a process boundary: everything but the lock and the caches rebuilt on
-        demand (the outer windows' and the notch cut's polygons, which would stay in the
-        receiver's cache as objects its garbage collector walks; a cut set's tubes are all drawn,
-        so the regions they were drawn from are not needed there)."""
+        demand (the outer windows' polygons and their unions, and the notch cut's polygons, which
+        would stay in the receiver's cache as objects its garbage collector walks and cost
+        pickling both ways; the tubes checks ask for are drawn before a set is sent, and a cut
+        set's are all drawn, so what they were drawn from is seldom needed there)."""
         state = vars(self).copy()
         del state["_lock"]
         state.update(
-            _outer_windows=None, _notch_regions={}, _notch_tubes={}, _last_minimum=(0, None)
+            _outer_windows=None,
+            _outer_unions={},
+            _notch_regions={},
+            _notch_tubes={},
+            _last_minimum=(0, None),
         )
         return state
 
@@ -205,7 +232,10 @@ class FieldTubeSet(FRTSet):
             k_set = k_set.intersection(outer)
         unresolved = self._unresolved_sweeps(j)
         if unresolved:
-            k_set = shapely.union(k_set, self._unresolved_hull(unresolved).intersection(outer))
+            hull = self._unresolved_hull(unresolved)
+            if not _one_window(unresolved):
+                hull = hull.intersection(outer)
+            k_set = shapely.union(k_set, hull)
         if self.notch is not None:
             k_set = k_set.intersection(self._notch_tube(j))
         with self._lock:
@@ -391,9 +421,23 @@ class FieldTubeSet(FRTSet):
         return k_set
 
 
-def _filled_contour(xs: np.ndarray, ys: np.ndarray, z: np.ndarray, level: float) -> BaseGeometry:
-    """The region {z <= level} of a node grid as a shapely geometry."""
-    points, offsets = _contour_generator(xs, ys, z).filled(-np.inf, level)
+def _one_window(sweeps: list[int]) -> bool:
+    """Whether ``sweeps`` are exactly the sweeps of one window of ``SWEEPS_PER_WINDOW`` (the
+    usual case: only the initial instant is unresolved). Their polygon is then that window's
+    polygon in ``FieldTubeSet.outer_tube`` (the same support maximum, the same vertices), which
+    lies in every outer tube past it: cutting it to the outer tube changes nothing."""
+    first = sweeps[0]
+    return (
+        first % SWEEPS_PER_WINDOW == 0
+        and len(sweeps) == SWEEPS_PER_WINDOW
+        and sweeps == list(range(first, first + SWEEPS_PER_WINDOW))
+    )
+
+
+def _filled_contour(x: np.ndarray, y: np.ndarray, z: np.ndarray, level: float) -> BaseGeometry:
+    """The region {z <= level} of a node grid (nodes at ``x``, ``y`` [ny, nx]) as a shapely
+    geometry."""
+    points, offsets = _contour_generator(x, y, z).filled(-np.inf, level)
     polygons = []
     for pts, off in zip(points, offsets, strict=True):
         rings = [pts[off[i] : off[i + 1]] for i in range(len(off) - 1)]
@@ -405,15 +449,14 @@ def _filled_contour(xs: np.ndarray, ys: np.ndarray, z: np.ndarray, level: float)
     return shapely.make_valid(shapely.union_all(polygons))
 
 
-def _contour_generator(xs: np.ndarray, ys: np.ndarray, z: np.ndarray) -> contourpy.ContourGenerator:
-    """contourpy's default ("serial") filled-contour generator of ``z`` on the nodes ``xs`` x
-    ``ys``. Fields of finite values (every field of a set: nodes outside a window hold ``FAR``)
+def _contour_generator(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> contourpy.ContourGenerator:
+    """contourpy's default ("serial") filled-contour generator of ``z`` on the nodes ``x``, ``y``
+    [ny, nx]. Fields of finite values (every field of a set: nodes outside a window hold ``FAR``)
     skip the masked-array scan of ``contourpy.contour_generator``, which costs more than the
     contour of a lattice window; the generator and its arguments are the same."""
     z = np.asarray(z, dtype=np.float64)
     if not np.isfinite(z).all():
-        return contourpy.contour_generator(xs, ys, z, fill_type="OuterOffset")
-    x, y = np.meshgrid(np.asarray(xs, dtype=np.float64), np.asarray(ys, dtype=np.float64))
+        return contourpy.contour_generator(x, y, z, fill_type="OuterOffset")
     return contourpy.SerialContourGenerator(
         x,
         y,

@@ -27,7 +27,8 @@ it with httpx from this process. Prints medians and p99 for:
 5. the HTTP floor: GET /healthz through the same client, server and middleware (what a request
    costs with no work in the route), next to the warm check;
 6. the exact set alone, in-process, for a moving, a parked and a wide-bound car (for the moving car
-   also with the projection network evaluated at every lattice node, i.e. without
+   also with the tubes make load's time-indexed checks need drawn, as a worker sends it, and with
+   the projection network evaluated at every lattice node, i.e. without
    ``reach.refine``; for the wide one also cut to the speed-coupled partition, the service's
    background refinement of such sets, ``FRTEngine.exact(notch_cut=True)``, by its first stage
    and by its last, ``reach.engine.NOTCH_STAGES``);
@@ -43,6 +44,10 @@ it with httpx from this process. Prints medians and p99 for:
    whose observations are audited before they are answered (the others' after); the
    observation's latency at the client and at the server (``Server-Timing``); and the audit's
    own work for one observation against 30 versions, in-process;
+9. the load mix: ``make load``'s defaults (``scripts/load.py``: 2 planners checking all of 10
+   humans at 10 Hz with 20-point time-indexed trajectories, each human observed at 5 Hz) for
+   ``--load-seconds``: a check-all round end to end, the share of per-agent answers from exact
+   sets and the late rounds, at the client and at the server;
 
 and, side by side in the same run, the naive approach: building the set by evaluating the full
 network on a dense grid for every query (no cache, no distilled projection).
@@ -58,6 +63,7 @@ import os
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Awaitable, Callable
 from contextlib import contextmanager
@@ -69,6 +75,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
+
+from scripts.exact_cost import LOAD_MIX_TUBES  # noqa: E402
 
 
 def free_port() -> int:
@@ -551,6 +559,35 @@ def server_counters(url: str) -> dict[str, int]:
     return counts
 
 
+def bench_load_mix(url: str, model: Path, seconds: float) -> dict:
+    """``make load``'s mix at its defaults (scripts/load.py: 2 planners checking all of 10 humans
+    at 10 Hz with 20-point time-indexed trajectories, each human observed at 5 Hz) for
+    ``seconds``: a check-all round end to end, the share of per-agent answers from exact sets,
+    late rounds at the client and at the server."""
+    with tempfile.TemporaryDirectory() as folder:
+        out = Path(folder) / "load.json"
+        subprocess.run(
+            [sys.executable, str(ROOT / "scripts" / "load.py"), "--url", url,
+             "--duration", str(seconds), "--model", str(model), "--out", str(out)],
+            check=False, capture_output=True, timeout=seconds + 300,
+        )  # fmt: skip
+        load = json.loads(out.read_text())
+    check = load["operations"]["check"]
+    deadline = load["deadline"]
+    return {
+        "seconds": seconds,
+        "n": check["count"],
+        "p50_ms": check["p50_ms"],
+        "p99_ms": check["p99_ms"],
+        "exact_share": deadline["exact_share"],
+        "answers": deadline["answers"],
+        "late_end_to_end": deadline["client_over_deadline"],
+        "late_server_side": deadline["server_misses"],
+        "errors": load["errors"],
+        "fallback_area_ratio": load["fallback_area_ratio"],
+    }
+
+
 def bench_naive(model: Path, n: int) -> dict:
     """The naive approach: per query, the set from the full network on a dense grid, no cache."""
     from models.runtime import ValueModel
@@ -668,11 +705,17 @@ def bench_exact_in_process(model: Path, n: int) -> dict[str, dict]:
         b = np.array(bounds)
 
         def run(
-            e: FRTEngine, stage: int | None = None, v: float = v_start, b: np.ndarray = b
+            e: FRTEngine,
+            stage: int | None = None,
+            v: float = v_start,
+            b: np.ndarray = b,
+            tubes: int = -1,
         ) -> Callable[[], object]:
-            return lambda: e.exact(Pose(0.0, 0.0, 0.0), v, b, notch_stage=stage)
+            return lambda: e.exact(Pose(0.0, 0.0, 0.0), v, b, notch_stage=stage, tubes_upto=tubes)
 
         variants = {name: run(engine)}
+        if "moving" in name:  # as a worker sends it for make load's 2 s time-indexed checks
+            variants[f"{name}_with_load_mix_tubes"] = run(engine, tubes=LOAD_MIX_TUBES)
         if not network:
             variants[f"{name}_with_network"] = run(with_network)
         if "moving" in name:
@@ -836,6 +879,12 @@ def main() -> None:
     parser.add_argument("--sustained-seconds", type=float, default=20.0)
     parser.add_argument("--naive", type=int, default=10)
     parser.add_argument(
+        "--load-seconds",
+        type=float,
+        default=30.0,
+        help="seconds of make load's mix (scripts/load.py at its defaults); 0: not run",
+    )
+    parser.add_argument(
         "--sustained-only",
         action="store_true",
         help="run only the sustained case (for comparing revisions run after run)",
@@ -909,6 +958,10 @@ def main() -> None:
                 results.setdefault(SUSTAINED_KEYS[transport], sustained)
         if args.sustained_runs > 1:
             results["sustained_runs"] = runs
+        if not (args.sustained_only or args.modes_only) and args.load_seconds > 0:
+            results["load_mix_check_all_10"] = bench_load_mix(
+                url, args.model.resolve(), args.load_seconds
+            )
     if not (args.sustained_only or args.modes_only):
         results.update(bench_audit(args.model.resolve(), args.audit_observations))
         results.update(bench_audit_in_process(args.model.resolve(), args.audit_observations))
@@ -923,6 +976,14 @@ def main() -> None:
     for transport, key in SUSTAINED_KEYS.items():
         if key in results:
             print_sustained(results[key], transport, width)
+    if "load_mix_check_all_10" in results:
+        mix = results["load_mix_check_all_10"]
+        print(
+            f"load mix (make load's defaults, {mix['seconds']:g} s): exact answers "
+            f"{100 * (mix['exact_share'] or 0):.1f} % of {mix['answers']}, late rounds "
+            f"{mix['late_end_to_end']} end to end (at the server {mix['late_server_side']}) of "
+            f"{mix['n']}, errors {mix['errors']}"
+        )
     for transport, summaries in results.get("sustained_runs", {}).items():
         late = [r["deadline_misses_end_to_end"] for r in summaries]
         server = [r["deadline_misses_server_side"] for r in summaries]

@@ -21,7 +21,7 @@ from reach.engine import FRTEngine
 from reach.frames import Pose
 from service.runtime.exact_worker import ExactTask, start_pool
 from service.runtime.metrics import Metrics
-from service.runtime.scheduler import FRTKey, FRTScheduler, LRUCache
+from service.runtime.scheduler import EXACT_OLDEST_AFTER_S, FRTKey, FRTScheduler, LRUCache
 from service.runtime.services import Services
 from service.runtime.settings import Settings
 
@@ -161,6 +161,7 @@ def test_forget_drops_an_agents_sets(scheduler: FRTScheduler) -> None:
 
 
 def test_queued_sets_are_not_waited_for_by_collision_checks(scheduler: FRTScheduler) -> None:
+    """Before any set has been timed, a queued set's turn cannot be foreseen: not waited for."""
     gate = threading.Event()
     scheduler.submit(key("busy", 1), lambda: gate.wait(5))  # occupies the only worker
     scheduler.submit(key("q", 1), lambda: "late")  # queued behind it
@@ -171,6 +172,24 @@ def test_queued_sets_are_not_waited_for_by_collision_checks(scheduler: FRTSchedu
         assert await scheduler.wait(key("q", 1), lambda: "late", 5.0) == "late"
 
     asyncio.run(scenario())
+
+
+def test_a_queued_set_is_waited_for_when_its_turn_is_due(scheduler: FRTScheduler) -> None:
+    """At the workers' recent pace (here: 0.1 s per set, one worker) the set queued last, which
+    starts next, is due in about 0.2 s, within a 0.5 s wait, so a check waits for it; the one
+    queued before it is due in about 0.3 s, past a 0.15 s wait."""
+    gate = threading.Event()
+    scheduler._typical_s = 0.1
+    scheduler.submit(key("busy", 1), lambda: gate.wait(5))  # occupies the only worker
+    scheduler.submit(key("earlier", 1), lambda: "earlier")
+    scheduler.submit(key("later", 1), lambda: "later")
+    finish = scheduler.queued_finish_s()
+    assert finish[key("earlier", 1)] > finish[key("later", 1)] > 0.0
+    assert scheduler.waitable(key("earlier", 1), lambda: "earlier", 0.15) is None
+    waited = scheduler.waitable(key("later", 1), lambda: "later", 0.5)
+    assert waited is not None and not waited.done()
+    gate.set()
+    assert waited.result(5) == "later"
 
 
 def test_a_running_set_not_due_within_the_wait_is_not_waited_for(scheduler: FRTScheduler) -> None:
@@ -201,17 +220,39 @@ def test_a_version_older_than_one_running_is_not_started(scheduler: FRTScheduler
     assert calls == []
 
 
-def test_a_newer_version_takes_its_agents_place_in_the_queue(scheduler: FRTScheduler) -> None:
-    """An agent observed faster than its sets are computed is not starved by the others."""
+def test_a_newer_version_replaces_its_agents_queued_one_and_goes_first(
+    scheduler: FRTScheduler,
+) -> None:
+    """An agent observed faster than its sets are computed is not starved by the others: its
+    newest version replaces the queued one and, submitted last, starts first."""
     gate = threading.Event()
     order: list[str] = []
     scheduler.submit(key("busy", 1), lambda: gate.wait(5))
-    scheduler.submit(key("x", 1), lambda: order.append("x1"))
+    x1 = scheduler.submit(key("x", 1), lambda: order.append("x1"))
     y1 = scheduler.submit(key("y", 1), lambda: order.append("y1"))
     scheduler.submit(key("x", 2), lambda: order.append("x2"))
+    assert x1.cancelled()
     gate.set()
     y1.result(5)
     assert order == ["x2", "y1"]
+
+
+def test_the_newest_set_starts_first_and_a_long_queued_one_next(scheduler: FRTScheduler) -> None:
+    """Newest first while the oldest queued has waited less than EXACT_OLDEST_AFTER_S; past it,
+    the oldest goes next (an agent observed rarely is not passed over for ever)."""
+    gate = threading.Event()
+    order: list[str] = []
+    scheduler.submit(key("busy", 1), lambda: gate.wait(5))
+    for agent in ("old", "a", "b"):
+        scheduler.submit(key(agent, 1), lambda agent=agent: order.append(agent))
+    # "old" has waited past the limit: it goes first, then the newest of the rest.
+    scheduler._pending[key("old", 1)].submitted -= EXACT_OLDEST_AFTER_S + 0.1
+    last = scheduler.submit(key("c", 1), lambda: order.append("c"))
+    gate.set()
+    last.result(5)
+    for agent in ("a", "b"):
+        scheduler.submit(key(agent, 1), lambda: None).result(5)
+    assert order == ["old", "c", "b", "a"]
 
 
 @pytest.fixture(scope="module")

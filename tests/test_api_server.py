@@ -444,6 +444,12 @@ def test_metrics_show_routes_frt_times_cache_and_agents(http: httpx.Client) -> N
     text = http.get("/metrics").text
     assert 'route="/v1/agents/{agent_id}/collision-check"' in text
     assert 'frt_compute_seconds_count{kind="exact"}' in text
+    for phase in ("queued", "transfer"):  # where an exact set's time goes besides computing it
+        count = next(
+            line for line in text.splitlines()
+            if line.startswith(f'frt_exact_phase_seconds_count{{phase="{phase}"}}')
+        )  # fmt: skip
+        assert float(count.split()[1]) >= 1
     assert 'frt_cache_lookups_total{result="hit"}' in text
     agents_line = next(line for line in text.splitlines() if line.startswith("frt_agents "))
     assert float(agents_line.split()[1]) >= 1

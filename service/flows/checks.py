@@ -4,8 +4,9 @@ Each agent's answer comes from the exact FRT of its current version if that is r
 there is time left to measure it, else from the engine's conservative set, which contains the exact
 one (``conservative: true``). "In time" is :func:`wait_budget_s`: the deadline runs from the
 request's arrival, and part of it is kept for answering, at what answering costs here
-(``service.runtime.answer_cost``), and for the trip back. Sets still queued behind others are not waited
-for. Clearance is the signed distance to K minus R_col: negative inside C.
+(``service.runtime.answer_cost``), and for the trip back. Sets that should not be done within the
+wait at the workers' recent pace (running or queued) are not waited for. Clearance is the signed
+distance to K minus R_col: negative inside C.
 """
 
 from __future__ import annotations

@@ -44,13 +44,13 @@ log = logging.getLogger("frt.exact_worker")
 
 @dataclass
 class ExactTask:
-    """``engine.exact(pose, v_start, bounds, notch_cut, notch_stage)``: with the given engine
-    (threads) or, once pickled to a worker process, with that process's own. Bounds of shape
-    [M, 8] (a multi-modal agent's modes in its set) give the union of the M exact sets
+    """``engine.exact(pose, v_start, bounds, notch_cut, notch_stage, tubes_upto)``: with the given
+    engine (threads) or, once pickled to a worker process, with that process's own. Bounds of
+    shape [M, 8] (a multi-modal agent's modes in its set) give the union of the M exact sets
     (``reach.union.exact_union``), which the notch cut does not refine. The set's tubes
-    0..``tubes_upto`` are drawn before it is returned (``FRTSet.draw_tubes``; -1: none but those
-    the engine draws), so that time-indexed checks find them instead of drawing them on the event
-    loop (``service.runtime.tube_demand``)."""
+    0..``tubes_upto`` are drawn before it is returned (``FRTEngine.exact``'s ``tubes_upto``; -1:
+    none but those the engine draws), so that time-indexed checks find them instead of drawing
+    them on the event loop (``service.runtime.tube_demand``)."""
 
     pose: Pose
     v_start: float
@@ -77,18 +77,18 @@ class ExactTask:
         if engine is None:
             raise RuntimeError("no engine in this process")
         if np.ndim(self.bounds) == 2:  # a multi-modal set: one row of bounds per mode
-            frt: FRTSet = exact_union(engine, self.pose, self.v_start, self.bounds)
-        else:
-            frt = engine.exact(
-                self.pose,
-                self.v_start,
-                self.bounds,
-                notch_cut=self.notch_cut,
-                notch_stage=self.notch_stage,
-            )
-        if self.tubes_upto >= 0:
-            frt.draw_tubes(self.tubes_upto)
-        return frt
+            union = exact_union(engine, self.pose, self.v_start, self.bounds)
+            if self.tubes_upto >= 0:
+                union.draw_tubes(self.tubes_upto)
+            return union
+        return engine.exact(
+            self.pose,
+            self.v_start,
+            self.bounds,
+            notch_cut=self.notch_cut,
+            notch_stage=self.notch_stage,
+            tubes_upto=self.tubes_upto,
+        )
 
     @property
     def stage(self) -> int:

@@ -45,6 +45,15 @@ class Metrics:
             buckets=LATENCY_BUCKETS,
             registry=r,
         )
+        self.exact_phase_seconds = Histogram(
+            "frt_exact_phase_seconds",
+            "Where an exact set's time goes besides its computation (frt_compute_seconds): "
+            "queued (submitted until a worker takes it) and transfer (the task to the worker and "
+            "the set back, pickled, while the worker's own timing is not running)",
+            ["phase"],
+            buckets=LATENCY_BUCKETS,
+            registry=r,
+        )
         self.frt_cache = Counter(
             "frt_cache_lookups",
             "Exact-FRT cache lookups: hit (ready), pending (being computed) or miss",

@@ -20,14 +20,16 @@ from __future__ import annotations
 import asyncio
 import functools
 import hashlib
+import heapq
 import logging
+import math
 import struct
 import threading
 import time
 from collections import OrderedDict
 from collections.abc import Callable, Hashable, Sequence
 from concurrent.futures import BrokenExecutor, CancelledError, Executor, Future, ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 from service.runtime.metrics import Metrics
@@ -54,6 +56,11 @@ class FRTKey:
 #: observations use the current state's), and a cache full of them only kept objects alive for the
 #: garbage collector to walk (tens of polygons per exact set once its tubes are drawn).
 VERSIONS_PER_AGENT = 2
+
+#: Exact sets start newest first; the oldest queued goes next all the same once it has waited
+#: this long, so that an agent observed rarely (whose queued version stays current) is not passed
+#: over for ever by agents observed often, whose queued versions are replaced by newer ones.
+EXACT_OLDEST_AFTER_S = 0.5
 
 
 class LRUCache:
@@ -141,10 +148,11 @@ class FRTScheduler:
     at most ``workers`` at a time.
 
     Sets wait in the scheduler's own queue, one per agent, until a worker is free: a newer version
-    of an agent replaces its queued older one in place (so an agent observed faster than its sets
-    can be computed is not starved), and a version older than one queued or running for the same
-    agent is not started at all. Only then does a set go to the executor, which therefore never holds
-    a superseded one.
+    of an agent replaces its queued older one, and a version older than one queued or running for
+    the same agent is not started at all. Only then does a set go to the executor, which therefore
+    never holds a superseded one. The set submitted last goes first (``EXACT_OLDEST_AFTER_S``):
+    when the workers fall behind, the version observed last has the most of its life left to be
+    served, while one that waited is the likeliest to be superseded before it is ready.
     """
 
     def __init__(self, *, workers: int, cache_size: int, metrics: Metrics) -> None:
@@ -216,8 +224,9 @@ class FRTScheduler:
 
     def submit(self, key: FRTKey, compute: Callable[[], Any]) -> Future[Any]:
         """Start computing ``key`` unless it is cached or under way. A queued older version of the
-        same agent is cancelled and this one takes its place in the queue; if a newer version is
-        queued or running, this one is not computed (the returned future is cancelled)."""
+        same agent is cancelled and this one is queued in its stead, to start first (newest
+        first); if a newer version is queued or running, this one is not computed (the returned
+        future is cancelled)."""
         with self._lock:
             if self._executor is None:
                 raise RuntimeError("scheduler not started")
@@ -242,7 +251,8 @@ class FRTScheduler:
                 if older is not None:
                     self._pending.pop(older).future.cancel()
             self._pending[key] = _Job(compute, future)
-            self._queue[slot] = key  # an existing slot keeps its place
+            self._queue[slot] = key
+            self._queue.move_to_end(slot)  # the newest at the end, taken first
             if key.agent_id:
                 self._refinements.note_version(key)
         self._dispatch()
@@ -275,8 +285,8 @@ class FRTScheduler:
         self, key: FRTKey, compute: Callable[[], Any], timeout_s: float
     ) -> Future[Any] | None:
         """For a collision check, without awaiting: the future of ``key``'s set if it may be ready
-        within ``timeout_s`` (done, or running and due at the workers' recent pace), else ``None``
-        (queued behind others, or too slow). Starts computing it if nobody has. A check of many
+        within ``timeout_s`` at the workers' recent pace (done; running and due; or queued and
+        its turn due, :meth:`queued_finish_s`), else ``None``. Starts computing it if nobody has. A check of many
         agents then awaits the few futures together instead of one task per agent."""
         return self.waitable_many([(key, compute)], timeout_s)[0]
 
@@ -290,18 +300,43 @@ class FRTScheduler:
         for label, count in (("pending", under_way), ("miss", len(jobs) - under_way)):
             if count:
                 self._metrics.frt_cache.labels(label).inc(count)
+        futures = [self.submit(key, compute) for key, compute in jobs]
+        queued_finish = self.queued_finish_s() if any(not f.running() for f in futures) else {}
         out: list[Future[Any] | None] = []
-        for key, compute in jobs:
-            future = self.submit(key, compute)
+        for (key, _), future in zip(jobs, futures, strict=True):
             if future.cancelled():
                 out.append(None)
             elif future.done():
                 out.append(future)
-            elif not future.running() or self.expected_remaining_s(key) > timeout_s:
-                out.append(None)
+            elif future.running():
+                out.append(future if self.expected_remaining_s(key) <= timeout_s else None)
             else:
-                out.append(future)
+                out.append(future if queued_finish.get(key, math.inf) <= timeout_s else None)
         return out
+
+    def queued_finish_s(self) -> dict[FRTKey, float]:
+        """About how long until each queued exact set is done, at the workers' recent pace: the
+        queue taken newest first by the first worker free (a running exact set's worker when it is
+        due; a worker refining is taken as busy beyond any wait). Empty while no set has been
+        timed here."""
+        with self._lock:
+            typical = self._typical_s
+            if typical <= 0.0 or self._executor is None:
+                return {}
+            now = time.perf_counter()
+            free = [max(self._started.get(k, now) + typical - now, 0.0) for k in self._running]
+            idle = self._workers - len(self._running) - len(self._refinements.running)
+            free += [0.0] * max(idle, 0)
+            queued = list(reversed(self._queue.values()))  # newest first, as dispatched
+        heapq.heapify(free)
+        finish: dict[FRTKey, float] = {}
+        for key in queued:
+            if not free:
+                break
+            done = heapq.heappop(free) + typical
+            finish[key] = done
+            heapq.heappush(free, done)
+        return finish
 
     def expected_remaining_s(self, key: FRTKey) -> float:
         """About how long until the running set ``key`` is done (0 if unknown or not running)."""
@@ -336,13 +371,18 @@ class FRTScheduler:
                 if not self._queue:
                     self._dispatch_refinements()
                     return
-                _, key = self._queue.popitem(last=False)
+                oldest = next(iter(self._queue.values()))
+                waited = time.perf_counter() - self._pending[oldest].submitted
+                _, key = self._queue.popitem(last=waited < EXACT_OLDEST_AFTER_S)
                 job = self._pending[key]
                 if not job.future.set_running_or_notify_cancel():
                     del self._pending[key]
                     continue
                 self._running.add(key)
-                self._started[key] = time.perf_counter()
+                job.dispatched = self._started[key] = time.perf_counter()
+                self._metrics.exact_phase_seconds.labels("queued").observe(
+                    job.dispatched - job.submitted
+                )
                 executor = self._executor
                 try:
                     handle = executor.submit(timed, job.compute)
@@ -462,6 +502,9 @@ class FRTScheduler:
             return
         if error is None:
             self._metrics.frt_compute_seconds.labels("exact").observe(seconds)
+            if job.dispatched is not None:
+                transfer = time.perf_counter() - job.dispatched - seconds
+                self._metrics.exact_phase_seconds.labels("transfer").observe(max(transfer, 0.0))
             if not discard:
                 self._queue_refinement(key, job.compute, result)
                 self._dispatch()
@@ -491,7 +534,7 @@ class FRTScheduler:
             self._refinements.clear()
             self._pending[key] = job
             self._running.add(key)
-            self._started[key] = time.perf_counter()
+            job.dispatched = self._started[key] = time.perf_counter()
             handle = self._executor.submit(timed, job.compute)
         broken.shutdown(wait=False, cancel_futures=True)
         handle.add_done_callback(functools.partial(self._finished, key))
@@ -503,6 +546,9 @@ class FRTScheduler:
 class _Job:
     compute: Callable[[], Any]
     future: Future[Any]
+    #: When it was submitted and when a worker got it (``time.perf_counter()``).
+    submitted: float = field(default_factory=time.perf_counter)
+    dispatched: float | None = None
 
 
 def timed(compute: Callable[[], Any]) -> tuple[Any, float]:

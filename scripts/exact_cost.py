@@ -1,0 +1,90 @@
+"""What one exact set of `make load`'s mix costs in-process: the set, its tubes, its pickling.
+
+The ten humans of ``scripts/load.py`` (their first predictions, beta 0.5), each set computed as a
+worker computes it (``service.runtime.exact_worker.ExactTask``): alone, and with the tubes the
+mix's time-indexed checks need (``LOAD_MIX_TUBES``); then pickled and unpickled as the pipe pool
+does. Medians per set over ``--repeats`` passes.
+
+``--src DIR`` imports the project from another checkout (e.g. an older commit exported with ``git
+archive``) for side-by-side figures on one machine: run it once per checkout, alternately.
+
+    python scripts/exact_cost.py
+    python scripts/exact_cost.py --src /tmp/base
+"""
+
+from __future__ import annotations
+
+import argparse
+import pickle
+import random
+import statistics
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+#: The tubes a worker draws for make load's checks: 20 points 0.1 s apart, starting up to ~0.2 s
+#: after the agent's observation, reach tube 21 (``service.runtime.tube_demand``).
+LOAD_MIX_TUBES = 21
+
+
+def mix_set_costs(model: Path, repeats: int = 5) -> dict[str, float]:
+    """Median ms per set: the exact set alone, with the tubes checks need, pickling and
+    unpickling it; and its pickled size in kB."""
+    from reach.frames import Pose
+    from scripts.fallback_cost import served_engine
+    from scripts.load import make_humans
+    from service.flows.agents import fit_bounds
+    from service.flows.bounds import validate_prediction
+    from service.runtime.exact_worker import ExactTask
+    from service.runtime.settings import Settings
+
+    engine = served_engine(model)
+    settings = Settings()
+    plain, with_tubes = [], []
+    for human in make_humans(10, "cost", 20.0, random.Random(0)):
+        p = human.prediction(0.0)
+        mean, cov = validate_prediction(p["mean"], p["cov"], p["dt"], 64)
+        bounds = fit_bounds(mean, cov, p["dt"], 0.5, settings.gamma, settings.bounds_fit, settings)
+        pose = Pose(human.x, human.y, human.heading)
+        plain.append(ExactTask(pose, human.speed, bounds, engine))
+        with_tubes.append(ExactTask(pose, human.speed, bounds, engine, tubes_upto=LOAD_MIX_TUBES))
+
+    def per_set(work: Callable[[], object], count: int) -> float:
+        times = []
+        for _ in range(repeats):
+            start = time.perf_counter()
+            work()
+            times.append((time.perf_counter() - start) / count * 1000.0)
+        return statistics.median(times)
+
+    sets = [task() for task in with_tubes]
+    blobs = [pickle.dumps(frt, 4) for frt in sets]
+    alone = per_set(lambda: [task() for task in plain], len(plain))
+    full = per_set(lambda: [task() for task in with_tubes], len(with_tubes))
+    return {
+        "exact set alone": alone,
+        "with the tubes checks need": full,
+        "of which the tubes": full - alone,
+        "pickling": per_set(lambda: [pickle.dumps(frt, 4) for frt in sets], len(sets)),
+        "unpickling": per_set(lambda: [pickle.loads(b) for b in blobs], len(blobs)),
+        "kB": sum(map(len, blobs)) / len(blobs) / 1000.0,
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--src", type=Path, default=ROOT, help="the project checkout to import")
+    p.add_argument("--model", type=Path, default=ROOT / "models" / "frt_unicycle.onnx")
+    p.add_argument("--repeats", type=int, default=5)
+    args = p.parse_args(argv)
+    sys.path.insert(0, str(args.src.resolve()))
+    costs = mix_set_costs(args.model, args.repeats)
+    print(f"{args.src}: " + ", ".join(f"{k} {v:.2f}" for k, v in costs.items()))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -61,8 +61,7 @@ def _tube_indices(sets: list[BoxTubeSet], t_rel: list[np.ndarray | None], n: int
         (s.slice_dt, s.horizon_s, s.n_slices) == grid for s in sets
     ):
         t = np.stack([np.asarray(v, dtype=np.float64).reshape(-1) for v in t_rel])  # type: ignore[arg-type]
-        t = np.clip(t, 0.0, first.horizon_s)
-        return np.minimum(np.ceil(t / first.slice_dt - 1e-9), first.n_slices - 1).astype(int)
+        return first.tube_indices(t).reshape(t.shape)
     return np.stack(
         [
             np.full(n, frt.n_slices - 1) if t is None else frt.tube_indices(t)

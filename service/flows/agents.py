@@ -36,7 +36,7 @@ from service.api.schemas import (
     Prediction,
 )
 from service.flows.adaptive_gamma import next_state, served_gamma
-from service.flows.audit import Scored, ServedVersion, score
+from service.flows.audit import Scored, ServedVersion
 from service.flows.bounds import PredictionError, control_bounds, validate_prediction
 from service.flows.confidence import Belief, hypotheses, prior_belief, update_belief
 from service.flows.mode_states import (
@@ -161,7 +161,12 @@ async def observe(
         services.audit.forget(agent_id)  # versions of an earlier life of this id
     # Scored now only where the new bounds depend on it (adaptive gamma); else after the answer.
     adaptive = settings.audit and _coverage_target(settings, previous, patch) is not None
-    scored = audit_position(services, agent_id, request, previous) if adaptive else None
+    position = request.state
+    scored = (
+        services.score_position(agent_id, position.x, position.y, request.timestamp)
+        if adaptive
+        else None
+    )
     builder = _StateBuilder(services, agent_id, request, mixture, patch, scored)
     if mixture is not None:
         mean, cov = mixture.means[0], mixture.covs[0]
@@ -332,20 +337,6 @@ def _coverage_target(
     """The agent's coverage target with this observation's config applied (None: gamma fixed)."""
     overrides = {**(previous.config if previous else {}), **patch}
     return effective_config(settings, overrides)["coverage_target"]  # type: ignore[no-any-return]
-
-
-def audit_position(
-    services: Services, agent_id: str, request: ObservationRequest, previous: AgentState | None
-) -> list[Scored]:
-    """The observed position scored against the agent's earlier versions whose horizon covers
-    its time (``service.flows.audit``); none for a new agent."""
-    if previous is None:
-        return []
-    versions = services.audit.covering(agent_id, request.timestamp)
-    if not versions:
-        return []
-    state = request.state
-    return score(state.x, state.y, request.timestamp, versions, services.scheduler.lookup)
 
 
 def adapt_gamma(prior: AgentState | None, scored: list[Scored], config: dict[str, Any]) -> float:

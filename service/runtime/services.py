@@ -251,14 +251,17 @@ class Services:
         self.tube_demand.forget(agent_id)
         self.audit.forget(agent_id)
 
-    def audit_later(self, agent_id: str, x: float, y: float, t: float) -> None:
-        """Audit the position (x, y) observed at ``t`` against the agent's earlier versions
-        (``service.flows.audit``): called once the observation's answer is on its way."""
+    def score_position(self, agent_id: str, x: float, y: float, t: float) -> list[Scored]:
+        """The position (x, y) observed at ``t`` scored against the agent's earlier versions whose
+        horizon covers ``t`` (``service.flows.audit``); none if there are none."""
         versions = self.audit.covering(agent_id, t)
-        if not versions:
-            return
+        return score(x, y, t, versions, self.scheduler.lookup) if versions else []
+
+    def audit_later(self, agent_id: str, x: float, y: float, t: float) -> None:
+        """Score and count the position (x, y) observed at ``t``: called once the observation's
+        answer is on its way."""
         try:
-            scored = score(x, y, t, versions, self.scheduler.lookup)
+            scored = self.score_position(agent_id, x, y, t)
         except Exception as exc:  # a measurement: it must never take the service down
             log.error("coverage audit failed", extra={"agent_id": agent_id, "error": repr(exc)})
             return

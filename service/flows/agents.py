@@ -44,6 +44,7 @@ from service.flows.mode_states import (
     check_class_ranges,
     class_limits,
     modes_out,
+    observed_state,
     resolve_class,
 )
 from service.flows.modes import Mixture, validate_mixture
@@ -245,18 +246,14 @@ class _StateBuilder:
         belief = self._updated_belief(prior, config)
         bounds = self._bounds(mean, cov, belief, config, klass)
         self.built.append(belief)
-        return AgentState(
-            agent_id=self.agent_id,
-            timestamp=request.timestamp,
-            x=request.state.x,
-            y=request.state.y,
-            heading=request.state.heading,
-            speed=request.state.speed,
+        return observed_state(
+            self.agent_id,
+            request,
+            prior,
             belief=belief.to_dict(),
             prediction={"dt": request.prediction.dt, "mean": mean.tolist(), "cov": cov.tolist()},
             control_bounds=[float(b) for b in bounds],
             config=overrides,
-            frt_version=(prior.frt_version + 1) if prior else 1,
             gamma_state=gamma_state,
         )
 

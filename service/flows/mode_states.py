@@ -141,13 +141,10 @@ def build_mode_state(
             "bounds": [bounds[m] for m in chosen],
             "mode_mass": mass,
         }
-    state = AgentState(
-        agent_id=agent_id,
-        timestamp=request.timestamp,
-        x=request.state.x,
-        y=request.state.y,
-        heading=request.state.heading,
-        speed=request.state.speed,
+    state = observed_state(
+        agent_id,
+        request,
+        prior,
         belief=belief.to_dict(),
         prediction={
             "dt": mixture.dt,
@@ -156,10 +153,27 @@ def build_mode_state(
         },
         control_bounds=bounds[main],
         config=overrides,
-        frt_version=(prior.frt_version + 1) if prior else 1,
         modes=modes,
     )
     return state, belief
+
+
+def observed_state(
+    agent_id: str, request: ObservationRequest, prior: AgentState | None, **fields: Any
+) -> AgentState:
+    """The agent's next state: the observation's time and pose, the version after ``prior``'s,
+    and ``fields`` (belief, prediction, bounds, config, ...)."""
+    pose = request.state
+    return AgentState(
+        agent_id=agent_id,
+        timestamp=request.timestamp,
+        x=pose.x,
+        y=pose.y,
+        heading=pose.heading,
+        speed=pose.speed,
+        frt_version=(prior.frt_version + 1) if prior else 1,
+        **fields,
+    )
 
 
 def _bounds(

@@ -216,7 +216,7 @@ class FRTEngine:
         cut_now = (self.notch_cut if notch_cut is None else notch_cut) and bool(cut.any())
         grid = self._grid(ob, rows)
         field, evaluations = self._instant_fields(grid, ob, rows, v_start, bounds)
-        sweep = self._interval_fields(grid, field, ob)
+        sweep, held = self._interval_fields(grid, field, ob)
         frt = FieldTubeSet(
             pose,
             self.slice_dt,
@@ -234,6 +234,8 @@ class FRTEngine:
                 else None
             ),
             notch_possible=bool(cut.any()),
+            outer_held=held,
+            instants_uncut=not self.cuts(v_start, bounds),
         )
         frt.evaluations = evaluations
         last = self.n_slices - 1
@@ -315,10 +317,13 @@ class FRTEngine:
         field[~grid.valid] = FAR
         return field, evaluations
 
-    def _interval_fields(self, grid: _InstantGrid, field: np.ndarray, ob: OuterBound) -> np.ndarray:
+    def _interval_fields(
+        self, grid: _InstantGrid, field: np.ndarray, ob: OuterBound
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Each interval's field: its two instants' minimum dilated on the grid by how far a car
         moves in half a slice (plus one node step for the node sampling), cut to the interval's
-        outer polygon; interval 0 is instant 0."""
+        outer polygon; interval 0 is instant 0. And per interval, whether the dilated instants
+        hold its outer polygon (``_holds_polygon``, ``FieldTubeSet.outer_held``)."""
         k = self.outer_steps_per_slice
         speed = span_reduce(block_reduce(ob.sweep_speed_max, k, np.maximum), np.maximum)
         speed[0] = 0.0
@@ -326,11 +331,14 @@ class FRTEngine:
         grown[~grid.valid] = FAR
         sweep = np.empty_like(field)
         sweep[0] = field[0]
+        held = np.zeros(self.n_slices, dtype=bool)
+        band = np.float32(math.sqrt(2.0) * grid.lattice.step * (1.0 + 1e-6))
         for j in range(1, self.n_slices):
             near = np.minimum(grown[j], grid.windows.shifted(grown, j - 1, j))
+            held[j] = _holds_polygon(near, grid.interval[j], grid.valid[j], band)
             np.maximum(near, grid.interval[j], out=sweep[j])
         sweep[~grid.valid] = FAR
-        return sweep
+        return sweep, held
 
     @staticmethod
     def notch_instants(ob: OuterBound, rows: list[int]) -> np.ndarray:
@@ -422,3 +430,17 @@ class FRTEngine:
             )
             return refined.values, refined.evaluated
         return evaluate(inside)
+
+
+def _holds_polygon(near: np.ndarray, polygon: np.ndarray, valid: np.ndarray, band: float) -> bool:
+    """Whether the interval field max(``near``, ``polygon``) has the zero contour of the polygon's
+    own field (both on the ``valid`` nodes of one window): ``near`` <= 0 wherever the polygon's
+    field is, and ``near`` <= the polygon's field within ``band`` (a cell diagonal) of its zero.
+    The two fields then have the same sign at every node, and the same value at every node of a
+    cell where the sign changes (the polygon's field is 1-Lipschitz), so their contours are one:
+    K over the interval is the polygon."""
+    inside = valid & (polygon <= 0)
+    if not np.all(near[inside] <= 0):
+        return False
+    edge = valid & (np.abs(polygon) <= band)
+    return bool(np.all(near[edge] <= polygon[edge]))

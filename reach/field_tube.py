@@ -164,6 +164,8 @@ class FieldTubeSet(FRTSet):
         coarse: np.ndarray | None = None,
         notch: NotchCut | None = None,
         notch_possible: bool = False,
+        outer_held: np.ndarray | None = None,
+        instants_uncut: bool = False,
     ) -> None:
         super().__init__(pose, slice_dt, horizon_s, len(instant), conservative=False)
         #: If set, every set drawn is also cut to the partition (``_notch_*``).
@@ -182,6 +184,13 @@ class FieldTubeSet(FRTSet):
         #: Instants whose outer polygon holds fewer than MIN_NODES_INSIDE lattice nodes: the grid
         #: cannot resolve K there, so the outer polygon stands for it.
         self.coarse = np.zeros(len(instant), dtype=bool) if coarse is None else coarse
+        #: Per interval j >= 1, whether {sweep_j <= 0} is its outer polygon's own zero set on the
+        #: grid (the dilated instants hold that polygon): K over the interval is the polygon.
+        self.outer_held = np.zeros(len(instant), dtype=bool) if outer_held is None else outer_held
+        if len(bound_rows) > 1 and bound_rows[1] - bound_rows[0] != SWEEPS_PER_WINDOW:
+            self.outer_held[:] = False  # the outer tube's windows are not the intervals
+        #: Whether no value field cuts any instant: each instant's field is its outer polygon's.
+        self.instants_uncut = instants_uncut
         self._tubes: dict[int, BaseGeometry] = {}
         self._slices: dict[int, BaseGeometry] = {}
         self._intervals: dict[int, BaseGeometry] = {}
@@ -223,6 +232,10 @@ class FieldTubeSet(FRTSet):
         if cached is not None:
             return cached
         outer = self.outer_tube(j)
+        if self._tube_is_outer(j):
+            with self._lock:
+                self._tubes[j] = outer
+            return outer
         k_set = self._sweeps_minimum(j).contour(self.lattice)
         if not k_set.is_empty:
             # The grid dilation already covers the node sampling; this covers the chords that
@@ -236,11 +249,28 @@ class FieldTubeSet(FRTSet):
             if not _one_window(unresolved):
                 hull = hull.intersection(outer)
             k_set = shapely.union(k_set, hull)
+        held = [i - 1 for i in range(1, j + 1) if self.outer_held[i]]
+        if held:
+            # Those intervals' K are their outer polygons: the tube holds them whole (and so
+            # each tube holds the one before, and every interval up to it).
+            k_set = shapely.union_all([k_set, *self._window_polygons()[held]])
         if self.notch is not None:
             k_set = k_set.intersection(self._notch_tube(j))
         with self._lock:
             self._tubes[j] = k_set
         return k_set
+
+    def _tube_is_outer(self, j: int) -> bool:
+        """Whether tube j is its outer tube: uncut by the notch, and every interval up to s_j
+        is its outer polygon (``outer_held``, or an unresolved instant at either end, whose
+        sweeps' hull is taken whole). The contour of the sweeps' minimum then holds each
+        interval's contour (linear interpolation of a minimum lies below the minimum of the
+        interpolations), each of which grown by the corner chords holds its polygon, so the cut
+        to the outer tube leaves the outer tube."""
+        if j < 1 or self.notch is not None:
+            return False
+        unresolved = self.coarse[1 : j + 1] | self.coarse[:j]
+        return bool(np.all(self.outer_held[1 : j + 1] | unresolved))
 
     def _sweeps_minimum(self, j: int) -> SliceField:
         """``running_minimum(self.sweep[: j + 1])``, from the last one taken before j when there
@@ -361,13 +391,9 @@ class FieldTubeSet(FRTSet):
             )
             return shapely.union_all(convex_polygons(self.bound.directions, windows))
         count = n // chunk
+        polygons = self._window_polygons()
         with self._lock:
-            polygons = self._outer_windows
             built = dict(self._outer_unions)
-        if polygons is None:
-            full = len(support) // chunk
-            windows = support[: full * chunk].reshape(full, chunk, -1).max(axis=1)
-            polygons = convex_polygons(self.bound.directions, windows)
         if count in built:
             union = built[count]
         else:
@@ -375,19 +401,38 @@ class FieldTubeSet(FRTSet):
             parts = list(polygons[start:count])
             union = shapely.union_all(parts if start == 0 else [built[start], *parts])
         with self._lock:
-            self._outer_windows = polygons
             self._outer_unions[count] = union
         return union
+
+    def _window_polygons(self) -> np.ndarray:
+        """The outer polygon of each whole window of ``SWEEPS_PER_WINDOW`` sweeps (window i - 1
+        spans interval i), built once per set."""
+        with self._lock:
+            polygons = self._outer_windows
+        if polygons is None:
+            chunk = SWEEPS_PER_WINDOW
+            support = self.bound.sweep_support
+            full = len(support) // chunk
+            windows = support[: full * chunk].reshape(full, chunk, -1).max(axis=1)
+            polygons = convex_polygons(self.bound.directions, windows)
+            with self._lock:
+                self._outer_windows = polygons
+        return polygons
 
     def slice(self, j: int) -> BaseGeometry:
         with self._lock:
             cached = self._slices.get(j)
         if cached is not None:
             return cached
-        k_set = self._grow(self.instant[j].contour(self.lattice))
-        if self.coarse[j] or not k_set.is_empty:
+        polygon_only = self.coarse[j] or (self.instants_uncut and j >= 1)
+        k_set = (
+            shapely.Polygon() if polygon_only else self._grow(self.instant[j].contour(self.lattice))
+        )
+        if polygon_only or not k_set.is_empty:
             polygon = shapely.Polygon(self.bound.polygons_at([self.bound_rows[j]])[0])
-            k_set = polygon if self.coarse[j] else k_set.intersection(polygon)
+            # An uncut instant's field is its polygon's: its contour grown by half a node step
+            # (more than the corner chords) holds the polygon, and the cut leaves the polygon.
+            k_set = polygon if polygon_only else k_set.intersection(polygon)
         if self.notch is not None and self.notch.cut[j]:
             k_set = k_set.intersection(self._notch_region(j, before=False, after=False))
         with self._lock:
@@ -403,7 +448,7 @@ class FieldTubeSet(FRTSet):
         if cached is not None:
             return cached
         polygon = self._sweeps_polygon(slice(self.bound_rows[j - 1], self.bound_rows[j]))
-        if self.coarse[j] or self.coarse[j - 1]:
+        if self.coarse[j] or self.coarse[j - 1] or self.outer_held[j]:
             k_set = polygon
         else:
             k_set = self.sweep[j].contour(self.lattice)

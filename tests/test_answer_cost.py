@@ -52,6 +52,9 @@ def test_as_many_exact_answers_as_fit() -> None:
     assert costs.exact_agents_within(7.0e-3, 40, 50) == 0
     cheaper = _costs(exact_s=0.1e-3, conservative_s=0.2e-3, response_s=0.0)
     assert cheaper.exact_agents_within(0.011, 40, 50) == 40
+    # Past the deadline's reserve either way: conservative answers would take longer still.
+    assert cheaper.exact_agents_within(0.005, 40, 50) == 40
+    assert cheaper.exact_agents_within(0.0, 40, 50) == 40
 
 
 @pytest.fixture(scope="module")

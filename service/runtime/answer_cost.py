@@ -61,13 +61,15 @@ class AnswerCosts:
 
     def exact_agents_within(self, seconds: float, exact_agents: int, agents: int) -> int:
         """How many of ``exact_agents`` can be answered from their exact sets within ``seconds``
-        when the other agents (of ``agents`` in all) are answered conservatively."""
+        when the other agents (of ``agents`` in all) are answered conservatively. All of them
+        where an exact answer costs no more than a conservative one: answering an agent
+        conservatively then saves no time."""
         per_exact = self.exact.upper_s(1)
         per_conservative = self.conservative.upper_s(1)
-        base = agents * (per_conservative + self.response.upper_s(1))
-        if base >= seconds:
-            return 0
         extra = per_exact - per_conservative
         if extra <= 0.0:
             return exact_agents
+        base = agents * (per_conservative + self.response.upper_s(1))
+        if base >= seconds:
+            return 0
         return min(exact_agents, math.floor((seconds - base) / extra))

@@ -4,8 +4,9 @@ Each instant's field is max(W - level, P) with P the signed distance to the inst
 (W the value field where one cuts, else -inf: the polygon alone). Between instants a car moves at
 most v_max * slice_dt / 2 from the nearer one, so the interval's field is the two instants' minimum
 dilated by that much on the grid and cut to the interval's outer polygon; a tube is the running
-minimum of the intervals' fields, contoured once. Every set drawn is inside the union of outer
-polygons and, where it is cut (``reach.notch``), inside the partition's region.
+minimum of the intervals' fields, contoured once; where a field's zero contour is its polygon's,
+the polygon is taken whole instead. Every set drawn is inside the union of outer polygons and,
+where it is cut (``reach.notch``), inside the partition's region.
 """
 
 from __future__ import annotations
@@ -85,9 +86,12 @@ class SliceFields:
     """The fields of every slice of one set, held as few objects: offsets in two integer arrays and
     the values in a tuple of arrays (neither is traversed by the garbage collector, whose full
     collections otherwise walked ~60 small objects per cached exact set: ~35 ms pauses with the
-    cache full). Indexing gives :class:`SliceField` views."""
+    cache full). Indexing gives :class:`SliceField` views. A slice whose values were dropped
+    (:meth:`keeping`: nothing will be drawn from it) holds None and raises when asked for."""
 
-    def __init__(self, k0: np.ndarray, i0: np.ndarray, values: tuple[np.ndarray, ...]) -> None:
+    def __init__(
+        self, k0: np.ndarray, i0: np.ndarray, values: tuple[np.ndarray | None, ...]
+    ) -> None:
         self.k0 = np.asarray(k0, dtype=np.int64)
         self.i0 = np.asarray(i0, dtype=np.int64)
         self.values = tuple(values)
@@ -104,7 +108,15 @@ class SliceFields:
     def __getitem__(self, j: int | slice) -> SliceField | list[SliceField]:
         if isinstance(j, slice):
             return [self[i] for i in range(*j.indices(len(self)))]
-        return SliceField(int(self.k0[j]), int(self.i0[j]), self.values[j])
+        values = self.values[j]
+        if values is None:
+            raise LookupError(f"the field of slice {j} was dropped: nothing is drawn from it")
+        return SliceField(int(self.k0[j]), int(self.i0[j]), values)
+
+    def keeping(self, needed: np.ndarray) -> SliceFields:
+        """The same fields with the values of the slices not ``needed`` dropped."""
+        values = tuple(v if keep else None for v, keep in zip(self.values, needed, strict=True))
+        return SliceFields(self.k0, self.i0, values)
 
 
 #: A corner of an outer polygon turns by 2 pi / 16 = 22.5 degrees; the contour draws a chord across
@@ -148,6 +160,11 @@ class FieldTubeSet(FRTSet):
     so a thin part of the set between nodes is not lost), grown by the contour's corner chords and
     cut to a union of outer polygons of [0, s_j], one per window of the conservative box tube,
     whose box holds it.
+
+    Where nothing cuts an instant (``instants_uncut``) its slice is its outer polygon, and where
+    interval j's field has its outer polygon's zero contour (``outer_held``) the interval is that
+    polygon; a tube of such intervals is their union, the outer tube (``_tube_is_outer``), and a
+    tube with other intervals too holds the polygons of these.
     """
 
     def __init__(
@@ -210,7 +227,10 @@ class FieldTubeSet(FRTSet):
         set's are all drawn, so what they were drawn from is seldom needed there)."""
         state = vars(self).copy()
         del state["_lock"]
+        instant, sweep = self._fields_needed()
         state.update(
+            instant=self.instant.keeping(instant),
+            sweep=self.sweep.keeping(sweep),
             _outer_windows=None,
             _outer_unions={},
             _notch_regions={},
@@ -218,6 +238,23 @@ class FieldTubeSet(FRTSet):
             _last_minimum=(0, None),
         )
         return state
+
+    def _fields_needed(self) -> tuple[np.ndarray, np.ndarray]:
+        """Which instants' and which intervals' fields a slice, interval or tube not drawn yet
+        may still be drawn from (the others are taken whole from outer polygons, or drawn)."""
+        n = self.n_slices
+        with self._lock:
+            slices, intervals, tubes = set(self._slices), set(self._intervals), set(self._tubes)
+        instant = ~(self.coarse | (self.instants_uncut & (np.arange(n) >= 1)))
+        instant[list(slices)] = False
+        sweep = np.zeros(n, dtype=bool)
+        for j in range(1, n):
+            whole = self.coarse[j] or self.coarse[j - 1] or self.outer_held[j]
+            sweep[j] = not whole and j not in intervals
+        contoured = [j for j in range(n) if j not in tubes and not self._tube_is_outer(j)]
+        if contoured:
+            sweep[: max(contoured) + 1] = True  # a tube is the minimum of the sweeps up to it
+        return instant, sweep
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         vars(self).update(state)

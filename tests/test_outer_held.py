@@ -8,6 +8,7 @@ the contour's chords cut off across the polygons' corners; tubes must stay neste
 
 from __future__ import annotations
 
+import pickle
 from pathlib import Path
 
 import numpy as np
@@ -80,3 +81,22 @@ def test_a_car_driving_straight_takes_the_polygons_whole(engine) -> None:
     assert frt.outer_held[3:].all()
     for j in (5, 12, 29):
         assert frt.tube(j).symmetric_difference(frt.outer_tube(j)).area < 1e-9
+
+
+@pytest.mark.parametrize("name", ["urban_narrow", "u_turn_like", "urban_wide"])
+def test_a_set_sent_to_the_server_draws_what_it_did_before_from_the_fields_it_keeps(
+    engine, name: str
+) -> None:
+    """A set crosses from a worker by pickle with only the fields something may still be drawn
+    from: every slice, interval and tube drawn after the crossing is the one drawn before it."""
+    setting = {s.name: s for s in SETTINGS}[name]
+    frt = engine.exact(Pose(1.0, 2.0, -0.4), setting.v_start, setting.bounds(), tubes_upto=12)
+    received = pickle.loads(pickle.dumps(frt, protocol=4))
+    reference = engine.exact(Pose(1.0, 2.0, -0.4), setting.v_start, setting.bounds())
+    for j in range(frt.n_slices):
+        for kind in ("tube", "interval", "slice"):
+            got, want = getattr(received, kind)(j), getattr(reference, kind)(j)
+            assert got.symmetric_difference(want).area < 1e-9, (name, kind, j)
+    kept = sum(v is not None for v in (*received.instant.values, *received.sweep.values))
+    if received.instants_uncut and received.outer_held[2:].all():
+        assert kept <= 2  # at most the initial instant's and its interval's

@@ -83,7 +83,7 @@ class Settings(BaseSettings):
     #: Default deadline of a collision check, measured from the request's arrival.
     deadline_ms: float = Field(20.0, gt=0.0, le=60_000.0)
     #: A check waits for a late exact set for at most this fraction of its deadline ...
-    deadline_wait_fraction: float = Field(0.5, ge=0.0, le=1.0)
+    deadline_wait_fraction: float = Field(0.6, ge=0.0, le=1.0)
     #: ... and never into the deadline's last milliseconds, kept to answer conservatively.
     deadline_reserve_ms: float = Field(1.0, ge=0.0)
     #: How long contours and the stateless endpoint wait for an exact set before going conservative.

@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 #: Stands for "+inf" in a contoured field (contourpy needs finite values).
@@ -88,23 +89,18 @@ class WindowStack:
     ) -> list[np.ndarray]:
         """Per support stack S [J, M] of ``supports``: max over m of (node . n_m - S[j, m]) at every
         node of every window ([J, H, W], float64; <= 0 exactly inside instant j's polygon of
-        support S[j]). Computed at the ``valid`` nodes only; the others hold +inf."""
-        jj, hh, ww = np.nonzero(valid)
-        x, y = self.xs[jj, ww], self.ys[jj, hh]
-        # Direction by direction on [N] vectors: small temporaries (large ones cost page faults).
-        best = [np.full(len(jj), -np.inf) for _ in supports]
-        along = np.empty(len(jj))
-        for m, phi in enumerate(directions):
-            np.multiply(x, math.cos(phi), out=along)
-            along += y * math.sin(phi)
-            for acc, support in zip(best, supports, strict=True):
-                np.maximum(acc, along - support[jj, m], out=acc)
-        out = []
-        for acc in best:
-            field = np.full(self.shape, np.inf)
-            field[jj, hh, ww] = acc
-            out.append(field)
-        return out
+        support S[j]). Computed at the ``valid`` nodes only (compiled, ``_polygon_fields``); the
+        others hold +inf."""
+        angles = np.asarray(directions, dtype=np.float64)
+        out = _polygon_fields(
+            np.ascontiguousarray(self.xs, dtype=np.float64),
+            np.ascontiguousarray(self.ys, dtype=np.float64),
+            np.ascontiguousarray(valid),
+            np.cos(angles),
+            np.sin(angles),
+            np.ascontiguousarray(np.stack(supports), dtype=np.float64),
+        )
+        return list(out)
 
     def shifted(self, stack: np.ndarray, src: int, dst: int) -> np.ndarray:
         """Window ``src``'s values of ``stack`` seen from window ``dst`` ([H, W]; FAR where ``src``
@@ -119,6 +115,46 @@ class WindowStack:
         if r1 > r0 and c1 > c0:
             out[r0:r1, c0:c1] = stack[src, r0 + dk : r1 + dk, c0 + di : c1 + di]
         return out
+
+
+@numba.njit(cache=True)
+def _polygon_fields(
+    xs: np.ndarray,
+    ys: np.ndarray,
+    valid: np.ndarray,
+    cosines: np.ndarray,
+    sines: np.ndarray,
+    supports: np.ndarray,
+) -> np.ndarray:
+    """max over m of (x cos_m + y sin_m - supports[s, j, m]) at each valid node (x = xs[j, w],
+    y = ys[j, h]) of each window j, for each support stack s: [S, J, H, W], +inf elsewhere."""
+    stacks, count, directions = supports.shape
+    height, width = valid.shape[1], valid.shape[2]
+    out = np.full((stacks, count, height, width), np.inf)
+    for j in range(count):
+        for h in range(height):
+            y = ys[j, h]
+            for w in range(width):
+                if not valid[j, h, w]:
+                    continue
+                x = xs[j, w]
+                for s in range(stacks):
+                    best = -np.inf
+                    for m in range(directions):
+                        along = x * cosines[m] + y * sines[m] - supports[s, j, m]
+                        if along > best:
+                            best = along
+                    out[s, j, h, w] = best
+    return out
+
+
+def compile_field_kernels() -> None:
+    """Compile (or load from numba's cache) ``_polygon_fields`` before a set needs it (the
+    first compilation after a change takes seconds)."""
+    one = np.zeros((1, 1))
+    _polygon_fields(
+        one, one, np.ones((1, 1, 1), dtype=np.bool_), one[0], one[0], np.zeros((1, 1, 1))
+    )
 
 
 def dilate_discs(values: np.ndarray, radii_nodes: np.ndarray) -> np.ndarray:

@@ -80,3 +80,24 @@ def test_polygon_field_is_negative_exactly_inside_the_polygon() -> None:
         inside = shapely.contains_xy(polygons[j], xs, ys)
         on_edge = np.abs(field[j]) < 1e-9
         assert np.array_equal((field[j] < 0)[~on_edge], inside[~on_edge])
+
+
+def test_polygon_fields_are_the_largest_half_plane_distance_at_valid_nodes_only() -> None:
+    """The compiled kernel against the formula evaluated at once by numpy broadcasting, on windows
+    of unequal shapes (padded nodes must stay +inf)."""
+    rng = np.random.default_rng(3)
+    count = 7
+    lo = rng.uniform(-5.0, 0.0, (count, 2))
+    hi = lo + rng.uniform(1.0, 6.0, (count, 2))
+    stack = WindowStack.make(lo, hi, origin=(-8.0, -8.0), step=0.3, size=(60, 60))
+    valid = stack.valid()
+    directions = np.linspace(0, 2 * math.pi, SUPPORT_DIRECTIONS, endpoint=False)
+    supports = [rng.uniform(0.0, 4.0, (count, SUPPORT_DIRECTIONS)) for _ in range(2)]
+    fields = stack.polygon_fields(directions, supports, valid)
+    x = stack.xs[:, None, :, None]
+    y = stack.ys[:, :, None, None]
+    along = x * np.cos(directions) + y * np.sin(directions)  # [J, H, W, M]
+    for field, support in zip(fields, supports, strict=True):
+        expected = (along - support[:, None, None, :]).max(axis=-1)
+        assert np.allclose(field[valid], expected[valid], rtol=0.0, atol=1e-12)
+        assert np.all(np.isposinf(field[~valid]))

@@ -30,6 +30,7 @@ import numpy as np
 
 from reach.contract import N_INPUTS
 from reach.engine import FRTEngine
+from reach.field_stack import compile_field_kernels
 from reach.frames import Pose
 from reach.notch import NOTCH_STAGES
 from reach.polygons import compile_polygon_kernel
@@ -126,6 +127,7 @@ def init_worker(
         warm_up_task(_engine)()
     compile_speed_programme()
     compile_polygon_kernel()
+    compile_field_kernels()
     field = _engine.value_field
     if isinstance(field, ProjectionField):  # the runtime's arena sized for the largest sets
         field.model.evaluate_projection(np.zeros((4 * _engine.max_nodes, N_INPUTS), np.float32))

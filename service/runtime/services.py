@@ -26,6 +26,7 @@ from models.runtime import ModelCard, ValueModel
 from models.value_fields import engine_for, network_decision
 from reach.contract import BOUND_COLUMNS
 from reach.engine import FRTEngine
+from reach.field_stack import compile_field_kernels
 from reach.frames import Pose
 from reach.notch import NOTCH_STAGES
 from reach.polygons import compile_polygon_kernel
@@ -158,7 +159,9 @@ class Services:
             model = ValueModel.load(path)
             network, reason = network_decision(model.card, self.settings.network)
             engine = engine_for(model, network=network)
-            compile_polygon_kernel()  # before readiness: a first call would stall the event loop
+            # Before readiness: a first call would stall the event loop (threads compute there).
+            compile_polygon_kernel()
+            compile_field_kernels()
         except Exception as exc:  # a missing or broken model must not stop the service
             self.model_error = f"model not loaded: {exc}"
             log.error("model not loaded", extra={"model_path": str(path), "error": str(exc)})

@@ -1,6 +1,6 @@
 """Exact FRTs in worker processes: one engine per process, results sent back by pickle.
 
-The event loop shares the GIL with any thread in its process, so an exact set (~13 ms of numpy,
+The event loop shares the GIL with any thread in its process, so an exact set (milliseconds of numpy,
 onnxruntime and Python) computed in a thread slows every request answered meanwhile. Here each
 worker process loads the model once (:func:`init_worker`, from the same model path as the server)
 and runs :class:`ExactTask`\\ s; the result, a :class:`~reach.engine.FieldTubeSet` with its

@@ -10,7 +10,6 @@ import asyncio
 import contextlib
 import functools
 import logging
-import sys
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future
@@ -140,7 +139,6 @@ class Services:
     # ------------------------------------------------------------------ lifecycle
     async def start(self) -> None:
         keep_freed_memory()  # a check of 50 agents stacks ~1 MB arrays: no page faults for them
-        sys.setswitchinterval(self.settings.gil_switch_interval_ms / 1000.0)
         await run_in_threadpool(lambda: None)  # the request thread pool's first thread, up front
         self.scheduler.start()
         self._loader = asyncio.create_task(asyncio.to_thread(self.load_model))

@@ -73,10 +73,6 @@ class Settings(BaseSettings):
     #: tube of each of its points drawn and answers from the exact set; off, the event loop draws
     #: them within checks' deadlines and between requests.
     frt_draw_tubes: bool = True
-    #: How long (ms) the thread holding the GIL keeps it while another thread asks for it
-    #: (``sys.setswitchinterval``; CPython's default is 5): the pipe pool's reader thread
-    #: takes the GIL from the event loop to hand a finished exact set over.
-    gil_switch_interval_ms: float = Field(5.0, gt=0.0, le=100.0)
     #: Exact FRTs kept in memory, keyed by (agent, FRT version, inputs): at most the two latest
     #: versions of each agent (``service.runtime.scheduler.VERSIONS_PER_AGENT``); least recently used go first.
     frt_cache_size: int = Field(1024, ge=1)

@@ -56,12 +56,14 @@ def event_loop_tubes(http: httpx.Client) -> float:
     return 0.0
 
 
-def check(http: httpx.Client, agent: str, points: list[dict], mode: str) -> dict:
+def check(
+    http: httpx.Client, agent: str, points: list[dict], mode: str, deadline_ms: float = 5000
+) -> dict:
     # A long deadline: what is asserted is where the tubes come from, not how fast a busy
     # machine answers.
     response = http.post(
         f"/v1/agents/{agent}/collision-check",
-        json={"trajectory": points, "mode": mode, "deadline_ms": 5000},
+        json={"trajectory": points, "mode": mode, "deadline_ms": deadline_ms},
     )
     assert response.status_code == 200, response.text
     return response.json()
@@ -97,6 +99,23 @@ def test_a_time_indexed_check_of_a_ready_set_is_exact(shipped_server: LiveServer
             )
             conservative = check(http, agent, points, "time_indexed")
             assert conservative["clearance"] == timed["clearance"]  # the same set, answered again
+
+
+def test_a_first_time_indexed_check_draws_its_tubes_when_they_fit_its_deadline(
+    shipped_server: LiveServer,
+) -> None:
+    """The server times tubes at start-up, so a new agent's first time-indexed check plans with
+    what they cost here: at a 200 ms deadline (a wait of 120 ms) its 30 tubes fit, where the first
+    guess (2 ms each, plus four deviations) would not."""
+    agent = f"h-{uuid.uuid4().hex[:8]}"
+    with httpx.Client(base_url=shipped_server.url, timeout=30.0) as http:
+        answer = http.post(
+            f"/v1/agents/{agent}/observations?wait_frt_ms=10000",
+            json=observation(20.0, 0.0, speed=8.0),
+        ).json()
+        assert answer["frt_ready"] is True
+        first = check(http, agent, trajectory(20.0, 0.0), "time_indexed", deadline_ms=200)
+        assert first["conservative"] is False
 
 
 TURNING = {

@@ -63,6 +63,18 @@ class TubeBuilder:
                 self.on_drawn()
         return True
 
+    def learn_cost(self, frt: FRTSet) -> None:
+        """Time drawing every tube of ``frt`` (a warm-up set, before any request) and plan with
+        that from now on instead of ``INITIAL_COST_S``: an agent's first time-indexed check then
+        draws the tubes it needs if they fit its deadline at what they cost here."""
+        measured = CostEstimate()
+        for j in frt.missing_tubes(list(range(frt.n_slices))):
+            start = time.perf_counter()
+            frt.tube(j)
+            measured.record(time.perf_counter() - start, 1)
+        if measured.measured:
+            self.cost = measured
+
     def later(self, frt: FRTSet, indices: list[int]) -> None:
         """Draw tubes ``indices`` of ``frt`` between requests, one per event-loop turn."""
         self._pending.extend((frt, j) for j in indices)

@@ -164,6 +164,10 @@ class Services:
             self.model_error = f"model not loaded: {exc}"
             log.error("model not loaded", extra={"model_path": str(path), "error": str(exc)})
             return
+        # What a tube costs here, before a first check has to guess; a model whose ranges
+        # exclude the warm-up setting keeps the first guess.
+        with contextlib.suppress(Exception):
+            self.tubes.learn_cost(warm_up_task(engine)())
         on_processes = self.settings.frt_executor == "process" and self._start_worker_processes(
             path, engine, network
         )

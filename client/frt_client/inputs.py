@@ -23,7 +23,7 @@ import pydantic
 from pydantic import BaseModel, ConfigDict, field_validator
 
 from frt_client.errors import ValidationError
-from frt_client.models import BoundsFit, ControlBounds
+from frt_client.models import BoundsFit, BoundsRule, ControlBounds
 
 #: The eight control-bound columns, in the model contract's order.
 BOUND_COLUMNS: tuple[str, ...] = (
@@ -97,6 +97,10 @@ class AgentConfig(RequestPart):
     epsilon: float | None = None
     collision_radius: float | None = None
     bounds_fit: BoundsFit | None = None
+    #: How confidence widens the bounds: "paper", "uniform_mixture" or "mass_ramp"
+    #: (docs/confidence.md), and the distrust 1 - beta below which every rule is the paper's.
+    bounds_rule: BoundsRule | None = None
+    rescue_onset: float | None = None
     #: Adaptive gamma: the long-run share of audited positions inside C to hold, and its step.
     coverage_target: float | None = None
     coverage_step: float | None = None

@@ -14,6 +14,7 @@ from pydantic import BaseModel, ConfigDict, Field
 Mode = Literal["tube", "time_indexed"]
 Part = Literal["K", "C"]
 BoundsFit = Literal["envelope", "endpoints"]
+BoundsRule = Literal["paper", "uniform_mixture", "mass_ramp"]
 #: A GeoJSON geometry object (``Polygon`` or ``MultiPolygon``) in the world frame.
 GeoJSON = dict[str, Any]
 
@@ -53,6 +54,9 @@ class EffectiveConfig(Response):
     epsilon: float
     collision_radius: float
     bounds_fit: str
+    #: The confidence-to-bounds rule building the agent's sets, and its onset.
+    bounds_rule: str = "paper"
+    rescue_onset: float = 0.0
     #: Adaptive gamma's target share of audited positions inside C (None: gamma fixed).
     coverage_target: float | None = None
     coverage_step: float | None = None

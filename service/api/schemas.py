@@ -43,6 +43,7 @@ Mat2 = Annotated[
 Radius = Annotated[float, Field(ge=0.0, le=100.0, description="metres")]
 Mode = Literal["tube", "time_indexed"]
 BoundsFit = Literal["envelope", "endpoints"]
+BoundsRuleName = Literal["paper", "uniform_mixture", "mass_ramp"]
 Part = Literal["K", "C"]
 #: A GeoJSON geometry object (``Polygon`` or ``MultiPolygon``) in the world frame.
 GeoJSON = dict[str, Any]
@@ -127,6 +128,18 @@ class AgentConfig(Request):
     epsilon: float | None = Field(None, ge=0.0, lt=1.0)
     collision_radius: Radius | None = None
     bounds_fit: BoundsFit | None = None
+    bounds_rule: BoundsRuleName | None = Field(
+        None,
+        description="how confidence widens the bounds (docs/confidence.md): 'paper' (covariance / "
+        "beta, trimmed to mass gamma), 'uniform_mixture' (the tempered prediction mixed with a "
+        "uniform over the class's limits, weighted by 1 - beta) or 'mass_ramp'",
+    )
+    rescue_onset: float | None = Field(
+        None,
+        ge=0.0,
+        lt=1.0,
+        description="the rule widens beyond the paper's only where 1 - beta exceeds this",
+    )
     mode_mass: float | None = Field(
         None, gt=0.0, le=1.0, description="share of the mode posterior the served set holds"
     )
@@ -152,6 +165,8 @@ class EffectiveConfig(Response):
     epsilon: float
     collision_radius: float
     bounds_fit: str
+    bounds_rule: str = Field(description="the confidence-to-bounds rule that builds the sets")
+    rescue_onset: float
     coverage_target: float | None = Field(None, description="adaptive gamma's target; null: off")
     coverage_step: float
 
@@ -450,6 +465,10 @@ class FRTRequest(Request):
     )
     gamma: float | None = Field(None, gt=0.0, lt=1.0)
     bounds_fit: BoundsFit | None = None
+    bounds_rule: BoundsRuleName | None = Field(
+        None, description="the confidence-to-bounds rule (default: the server's)"
+    )
+    rescue_onset: float | None = Field(None, ge=0.0, lt=1.0)
     collision_radius: Radius | None = None
     contours: ContourQuery | None = Field(None, description="default: the tube when no trajectory")
     trajectory: Trajectory | None = None
@@ -499,6 +518,9 @@ class ActiveParts(Response):
         "that may turn round are refined by the speed-coupled partition"
     )
     value_network: NetworkPart
+    bounds_rule: str = Field(
+        description="the server's confidence-to-bounds rule (agents may choose their own)"
+    )
 
 
 class ModelCardResponse(Response):

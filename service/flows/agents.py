@@ -59,6 +59,8 @@ CONFIG_KEYS = (
     "epsilon",
     "collision_radius",
     "bounds_fit",
+    "bounds_rule",
+    "rescue_onset",
     "coverage_target",
     "coverage_step",
 )
@@ -98,9 +100,11 @@ def fit_bounds(
     bounds_fit: str,
     settings: Settings,
     limits: tuple[float, float] | None = None,
+    rule: str = "paper",
+    onset: float = 0.0,
 ) -> np.ndarray:
-    """The eight control bounds (contract order) of a prediction tempered by beta, within
-    ``limits`` (default: the server's hard limits)."""
+    """The eight control bounds (contract order) of a prediction tempered by beta under the
+    confidence-to-bounds ``rule``, within ``limits`` (default: the server's hard limits)."""
     try:
         bounds = control_bounds(
             mean,
@@ -111,6 +115,8 @@ def fit_bounds(
             horizon=settings.horizon_s,
             method=bounds_fit,  # type: ignore[arg-type]
             limits=limits or (settings.u1_limit, settings.u2_limit),
+            rule=rule,  # type: ignore[arg-type]
+            onset=onset,
         )
     except PredictionError as exc:
         raise prediction_error(exc) from None
@@ -288,6 +294,8 @@ class _StateBuilder:
             config["bounds_fit"],
             settings,
             limits=class_limits(klass, settings),
+            rule=config["bounds_rule"],
+            onset=config["rescue_onset"],
         )
         if klass.name == "car":
             check_ranges(engine, self.request.state.speed, bounds, bounds_field="prediction")

@@ -27,13 +27,13 @@ import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, fields
 from functools import lru_cache
-from statistics import NormalDist
 from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from reach.contract import HORIZON_S, U1_LIMIT, U2_LIMIT
+from service.flows.bounds_rule import BoundsRule, distrust, half_width_factor, half_widths
 
 DEFAULT_LIMITS: tuple[float, float] = (U1_LIMIT, U2_LIMIT)
 #: A covariance is symmetric when |S01 - S10| <= SYMMETRY_RTOL * max(|S00|, |S11|); then the mean
@@ -91,36 +91,24 @@ _BOUND_FIELDS = tuple(f.name for f in fields(ControlBounds))
 
 # --- gamma trimming ---------------------------------------------------------------------------
 
-_STANDARD_NORMAL = NormalDist()
-
-
-def half_width_factor(gamma: float) -> float:
-    """z_gamma with P(|Z| <= z_gamma) = gamma for Z ~ N(0, 1), i.e. Phi^-1((1 + gamma) / 2).
-
-    Paper, "Collision Set Update" (the gamma-trimming equation): for u ~ N(mu, s^2) the interval
-    [mu - delta, mu + delta] holds mass gamma iff delta = z_gamma s. Computed as
-    -Phi^-1((1 - gamma) / 2) (``statistics.NormalDist``), which keeps gamma close to 1 precise; for
-    gamma < 1/2 one Newton step on ``erf(z / sqrt 2) = gamma`` (erf is accurate near 0) keeps small
-    gamma precise too.
-    """
-    if not (math.isfinite(gamma) and 0.0 < gamma < 1.0):
-        raise ValueError(f"gamma must lie in (0, 1), got {gamma!r}")
-    z = -_STANDARD_NORMAL.inv_cdf(0.5 * (1.0 - gamma))
-    if gamma < 0.5:
-        slope = math.sqrt(2.0 / math.pi) * math.exp(-0.5 * z * z)
-        z -= (math.erf(z / math.sqrt(2.0)) - gamma) / slope
-    return max(0.0, z)
-
 
 def trim_intervals(
-    mean: ArrayLike, cov: ArrayLike, beta: float, gamma: float
+    mean: ArrayLike,
+    cov: ArrayLike,
+    beta: float,
+    gamma: float,
+    rule: BoundsRule = "paper",
+    onset: float = 0.0,
+    limits: Sequence[float] = DEFAULT_LIMITS,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Per-step, per-dimension intervals ``mu_i -+ delta`` holding mass gamma under N(mu, Sigma/beta).
+    """Per-step, per-dimension intervals ``mu_i -+ delta`` of the tempered prediction N(mu, Sigma/beta).
 
     Paper, "Collision Set Update" (gamma trimming) applied to the tempered prediction of eq.
-    ``predUpdate``: ``delta = z_gamma sqrt(Sigma_ii / beta)``. Only the diagonal of each covariance
-    is used (the bounds are a box, one interval per control). ``mean`` is (S, 2), ``cov``
-    (S, 2, 2); returns ``(lo, hi)``, each (S, 2), not yet clipped to the limits.
+    ``predUpdate``: under ``rule = "paper"``, ``delta = z_gamma sqrt(Sigma_ii / beta)`` (mass gamma);
+    the other rules (``service.flows.bounds_rule``) widen it with the distrust
+    ``w = distrust(beta, onset)`` towards the ``limits`` and equal it where ``w = 0``. Only the
+    diagonal of each covariance is used (the bounds are a box, one interval per control). ``mean``
+    is (S, 2), ``cov`` (S, 2, 2); returns ``(lo, hi)``, each (S, 2), not yet clipped to the limits.
     """
     mu = np.asarray(mean, dtype=np.float64)
     sigma = np.asarray(cov, dtype=np.float64)
@@ -133,7 +121,12 @@ def trim_intervals(
     variances = sigma[:, [0, 1], [0, 1]]
     if not np.all(variances > 0.0):
         raise ValueError("covariance diagonals must be positive")
-    delta = half_width_factor(gamma) * np.sqrt(variances / beta)
+    if rule == "paper":
+        delta = half_width_factor(gamma) * np.sqrt(variances / beta)
+    else:
+        w = distrust(min(beta, 1.0), onset)
+        tempered = np.sqrt(variances / beta)
+        delta = half_widths(mu, tempered, gamma, half_width_factor(gamma), _limits(limits), rule, w)
     return mu - delta, mu + delta
 
 
@@ -314,14 +307,17 @@ def control_bounds(
     horizon: float = HORIZON_S,
     method: BoundsFit = "envelope",
     limits: Sequence[float] = DEFAULT_LIMITS,
+    rule: BoundsRule = "paper",
+    onset: float = 0.0,
 ) -> ControlBounds:
     """The FRT's control bounds from a prediction and beta: trim, clip, fit.
 
-    Paper, "Collision Set Update": gamma trimming of N(mu, Sigma / beta) (eq. ``predUpdate``), the
-    hard limits, then the start/end parameterisation (eq. for ``u~_min^tau``); see
+    Paper, "Collision Set Update": gamma trimming of N(mu, Sigma / beta) (eq. ``predUpdate``) under
+    the confidence-to-bounds ``rule`` (``service.flows.bounds_rule``; ``"paper"`` is the paper's),
+    the hard limits, then the start/end parameterisation (eq. for ``u~_min^tau``); see
     :func:`trim_intervals`, :func:`clip_intervals`, :func:`fit_bounds`.
     """
-    lo, hi = trim_intervals(mean, cov, beta, gamma)
+    lo, hi = trim_intervals(mean, cov, beta, gamma, rule=rule, onset=onset, limits=limits)
     return fit_bounds(lo, hi, dt, horizon=horizon, method=method, limits=limits)  # clips first
 
 

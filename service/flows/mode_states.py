@@ -194,6 +194,8 @@ def _bounds(
             horizon=settings.horizon_s,
             method=config["bounds_fit"],
             limits=limits,
+            rule=config["bounds_rule"],
+            onset=config["rescue_onset"],
         )
     except (PredictionError, ValueError) as exc:
         raise FieldError(f"prediction.modes.{m}", str(exc)) from None

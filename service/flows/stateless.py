@@ -27,7 +27,13 @@ def request_bounds(services: Services, request: FRTRequest) -> np.ndarray:
     if request.control_bounds is not None and request.prediction is not None:
         raise FieldError("prediction", "give either control_bounds or prediction, not both")
     if request.control_bounds is not None:
-        for name in ("beta", "gamma", "bounds_fit"):  # they shape bounds from a prediction only
+        for name in (
+            "beta",
+            "gamma",
+            "bounds_fit",
+            "bounds_rule",
+            "rescue_onset",
+        ):  # they shape bounds from a prediction only
             if getattr(request, name) is not None:
                 raise FieldError(name, "applies to a prediction; control_bounds are used as given")
         return np.array(request.control_bounds.as_list(), dtype=np.float64)
@@ -44,6 +50,8 @@ def request_bounds(services: Services, request: FRTRequest) -> np.ndarray:
         request.gamma if request.gamma is not None else settings.gamma,
         request.bounds_fit or settings.bounds_fit,
         settings,
+        rule=request.bounds_rule or settings.bounds_rule,
+        onset=request.rescue_onset if request.rescue_onset is not None else settings.rescue_onset,
     )
 
 

@@ -181,6 +181,7 @@ class Services:
         self.parts = ActiveParts(
             geometry=["outer_bound", *(["notch_partition"] if notch_cut else [])],
             value_network=NetworkPart(loaded=True, active=network, reason=reason),
+            bounds_rule=self.settings.bounds_rule,
         )
         self.model_name = model.card.name
         self.model_error = None

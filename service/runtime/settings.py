@@ -39,6 +39,12 @@ class Settings(BaseSettings):
     u1_limit: float = U1_LIMIT
     u2_limit: float = U2_LIMIT
     bounds_fit: str = "envelope"
+    #: How confidence widens the bounds (``service.flows.bounds_rule``): "paper" is the paper's
+    #: covariance / beta with a fixed gamma; "uniform_mixture" mixes in a uniform over the class's
+    #: limits weighted by the distrust 1 - beta; "mass_ramp" raises the trimmed mass instead.
+    bounds_rule: Literal["paper", "uniform_mixture", "mass_ramp"] = "paper"
+    #: The rule is the paper's wherever 1 - beta is at most this (a dead zone near full confidence).
+    rescue_onset: float = Field(0.0, ge=0.0, lt=1.0)
     max_agents: int = Field(10_000, ge=1)
     agent_ttl_s: float = Field(300.0, gt=0.0)
     max_body_bytes: int = Field(1_000_000, ge=1024)

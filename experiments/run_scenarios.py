@@ -24,6 +24,7 @@ import contextlib
 import json
 import math
 import uuid
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -79,13 +80,22 @@ def predictor_for(sc: Scene) -> StopPredictor:
     return StopPredictor(stop_line=sc.human_stop_line, catch_on_distance_m=6.0)
 
 
-def agent_config(confidence: bool, beta_low: float = BETA_LOW, gamma: float = GAMMA) -> dict:
-    """Per-agent settings (API.md, Observation ``config``) for confidence on or off."""
-    return {
+def agent_config(
+    confidence: bool,
+    beta_low: float = BETA_LOW,
+    gamma: float = GAMMA,
+    bounds_rule: str | None = None,
+) -> dict:
+    """Per-agent settings (API.md, Observation ``config``) for confidence on or off, with the
+    confidence-to-bounds rule ``bounds_rule`` (None: the server's)."""
+    config: dict[str, Any] = {
         "beta_low": beta_low if confidence else BETA_LOW_OFF,
         "gamma": gamma,
         "collision_radius": COLLISION_RADIUS_M,
     }
+    if bounds_rule is not None:
+        config["bounds_rule"] = bounds_rule
+    return config
 
 
 @dataclass
@@ -177,6 +187,7 @@ def run_scenario(
     beta_low: float = BETA_LOW,
     gamma: float = GAMMA,
     predictor: StopPredictor | BimodalPredictor | None = None,
+    bounds_rule: str | None = None,
     duration_s: float | None = None,
     keep_contours: bool = True,
     deadline_ms: float = DEADLINE_MS,
@@ -192,7 +203,7 @@ def run_scenario(
     duration = sc.duration_s if duration_s is None else min(duration_s, sc.duration_s)
     ego = EgoCar(x=sc.ego_start_x, y=sc.ego_y, speed=sc.ego_speed_mps, stop_line_x=sc.stop_line_x)
     agent_id = f"{sc.name}-{'on' if confidence else 'off'}-{uuid.uuid4().hex[:8]}"
-    config = agent_config(confidence, beta_low, gamma)
+    config = agent_config(confidence, beta_low, gamma, bounds_rule)
     run = ScenarioRun(
         scene=sc.name,
         confidence=confidence,
@@ -295,26 +306,34 @@ def bimodal_predictor(sc: Scene) -> BimodalPredictor:
     return BimodalPredictor(predictor_for(sc), turn_radius_m=radius, w_straight=0.9)
 
 
+#: Rules :func:`run_all_scenes` runs with confidence on beside the server's.
+COMPARED_RULES: tuple[str, ...] = ("paper", "uniform_mixture")
 #: The scene each run of :func:`run_all_scenes` plays.
 RUN_SCENES = {"uturn": "uturn", "uturn_bimodal": "uturn", "stop_sign": "stop_sign"}
 
 
-def run_all_scenes(client: Any, **kwargs: Any) -> dict[str, dict[str, ScenarioRun]]:
-    """Both scenes, confidence on and off: ``{scene: {"on": run, "off": run}}``; and the U-turn
-    with the bimodal stand-in predictor (``uturn_bimodal``)."""
+def run_all_scenes(
+    client: Any, rules: Sequence[str] = COMPARED_RULES, **kwargs: Any
+) -> dict[str, dict[str, ScenarioRun]]:
+    """Both scenes, confidence on and off with the server's bounds rule: ``{scene: {"on": run,
+    "off": run}}``, plus confidence on with each of ``rules`` (``"on, <rule>"``); and the U-turn
+    with the bimodal stand-in predictor (``uturn_bimodal``), the same runs."""
     out: dict[str, dict[str, ScenarioRun]] = {}
     for name in ("uturn", "stop_sign"):
         sc = scene(name)
-        out[name] = {
-            "on": run_scenario(client, sc, True, **kwargs),
-            "off": run_scenario(client, sc, False, **kwargs),
-        }
+        predictors: dict[str, StopPredictor | BimodalPredictor | None] = {name: None}
         if name == "uturn":
-            two = bimodal_predictor(sc)
-            out["uturn_bimodal"] = {
-                "on": run_scenario(client, sc, True, predictor=two, **kwargs),
-                "off": run_scenario(client, sc, False, predictor=two, **kwargs),
+            predictors["uturn_bimodal"] = bimodal_predictor(sc)
+        for run_name, predictor in predictors.items():
+            runs = {
+                "on": run_scenario(client, sc, True, predictor=predictor, **kwargs),
+                "off": run_scenario(client, sc, False, predictor=predictor, **kwargs),
             }
+            for rule in rules:
+                runs[f"on, {rule}"] = run_scenario(
+                    client, sc, True, predictor=predictor, bounds_rule=rule, **kwargs
+                )
+            out[run_name] = runs
     return out
 
 
@@ -348,7 +367,7 @@ def table(runs: dict[str, dict[str, ScenarioRun]]) -> str:
     )
     rows = []
     for name, pair in runs.items():
-        for mode in ("on", "off"):
+        for mode in pair:
             s = pair[mode].summary()
             p = PAPER.get(name, {}).get(mode)
             paper = "—"  # the paper has no multi-modal predictor

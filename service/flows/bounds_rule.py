@@ -39,7 +39,7 @@ BoundsRule = Literal["paper", "uniform_mixture", "mass_ramp"]
 BOUNDS_RULES: tuple[BoundsRule, ...] = ("paper", "uniform_mixture", "mass_ramp")
 #: ``"mass_ramp"``'s trimmed mass at full distrust (w = 1).
 RAMP_MASS_MAX = 0.999
-#: Bisection stops when the bracket is narrower than this (relative to its upper end).
+#: The smallest Newton step, relative to delta: the solve ends one such step past the root.
 _SOLVE_RTOL = 1e-12
 _SOLVE_MAX_ITER = 200
 
@@ -89,16 +89,26 @@ def _uniform_mass(delta: float, mu: float, limit: float) -> float:
     return max(0.0, overlap) / (2.0 * limit)
 
 
+def _slope(delta: float, mu: float, sigma: float, limit: float, w: float) -> float:
+    """d/d delta of ``(1 - w) m_N + w m_U``: each end of the interval inside the box adds to m_U."""
+    z = delta / sigma
+    gaussian = math.sqrt(2.0 / math.pi) / sigma * math.exp(-0.5 * z * z)
+    ends_inside = int(mu + delta < limit) + int(mu - delta > -limit)
+    return (1.0 - w) * gaussian + w * ends_inside / (2.0 * limit)
+
+
 def mixture_half_width(
     mu: float, sigma: float, limit: float, gamma: float, w: float, delta_paper: float
 ) -> float:
     """``delta`` with ``(1 - w) m_N(delta) + w m_U(delta) = (1 - w) gamma + w``, at least
     ``delta_paper`` (the paper's ``z_gamma sigma``).
 
-    The left side minus the right is increasing in delta, <= 0 at ``delta_paper`` (where
+    The left side minus the right, ``F``, is increasing and concave in delta (``m_N`` is concave
+    for delta > 0, ``m_U`` piecewise linear with falling slopes), <= 0 at ``delta_paper`` (where
     ``m_N = gamma``) and >= 0 once the interval covers ``[-limit, limit]`` (``delta = limit +
-    |mu|``), so bisection between the two finds it; the upper end of the final bracket is
-    returned (the interval then holds at least the target mass).
+    |mu|``). Newton's method from ``delta_paper`` therefore climbs to the root from below without
+    overshooting; the value returned is the first one past it (``F >= 0``), so the interval holds
+    at least the target mass.
     """
     if w <= 0.0:
         return delta_paper
@@ -111,18 +121,17 @@ def mixture_half_width(
         mass = (1.0 - w) * _gaussian_mass(delta, sigma) + w * _uniform_mass(delta, mu, limit)
         return mass - target
 
-    lo, hi = delta_paper, full
-    if excess(hi) < 0.0:  # rounding at w close to 1: the whole box
-        return hi
+    x = delta_paper
     for _ in range(_SOLVE_MAX_ITER):
-        if hi - lo <= _SOLVE_RTOL * hi:
-            break
-        mid = 0.5 * (lo + hi)
-        if excess(mid) >= 0.0:
-            hi = mid
-        else:
-            lo = mid
-    return hi
+        f = excess(x)
+        if f >= 0.0:
+            return x
+        slope = _slope(x, mu, sigma, limit, w)
+        step = -f / slope if slope > 0.0 else full - x
+        x = min(full, x + max(step, _SOLVE_RTOL * x))
+        if x >= full:
+            return full
+    return full
 
 
 def half_widths(
@@ -150,6 +159,11 @@ def half_widths(
     for k in range(paper.shape[0]):
         for d in range(2):
             out[k, d] = mixture_half_width(
-                float(mean[k, d]), float(sigma[k, d]), float(limits[d]), gamma, w, paper[k, d]
+                float(mean[k, d]),
+                float(sigma[k, d]),
+                float(limits[d]),
+                gamma,
+                w,
+                float(paper[k, d]),
             )
     return out

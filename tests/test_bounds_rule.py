@@ -252,3 +252,22 @@ def test_the_served_set_holds_rollouts_under_the_rescued_bounds(client: TestClie
         assert len(xy) > 0
         inside = shapely.contains_xy(k, xy[:, 0], xy[:, 1])
         assert inside.all(), f"t={t}: {int((~inside).sum())} rollout points outside K"
+
+
+def test_adaptive_gamma_is_the_rules_gamma(client: TestClient) -> None:
+    """With a coverage target the rule trims the trusted part at adaptive gamma's current gamma:
+    the served bounds are the rule's at the agent's beta and gamma_effective."""
+    agent = "rule-adaptive"
+    config = {"beta_low": BETA_LOW, "bounds_rule": "uniform_mixture", "coverage_target": 0.9}
+    observe(client, agent, body(0.0, config=config))
+    # Far from every earlier set: misses that move adaptive gamma, and an action that lowers beta.
+    far = body(0.5, action=(0.3, 2.0))
+    far["state"] = {"x": 40.0, "y": 15.0, "heading": 0.0, "speed": 5.0}
+    out = observe(client, agent, far)
+    view = client.get(f"/v1/agents/{agent}").json()
+    gamma = view["gamma_effective"]
+    assert gamma > GAMMA and out["beta"] < 0.5
+    expected = control_bounds(
+        np.array(MEAN), np.array(COV), 0.5, out["beta"], gamma, rule="uniform_mixture"
+    ).to_dict()
+    assert out["control_bounds"] == pytest.approx(expected, rel=1e-12, abs=1e-12)

@@ -18,7 +18,7 @@ TARGET ?= 0.99
 PROFILE ?= av2
 FIND_LINKS := $(if $(wildcard /opt/wheels),--find-links /opt/wheels,)
 
-.PHONY: venv serve demo viewer-screenshot test lint format train train-smoke evaluate evaluate-full compare-authors network-diagnostics bench bench-sustained bench-audit load load-scale profile-load scale-test scenarios calibrate plots clean
+.PHONY: venv serve demo viewer-screenshot test lint format train train-smoke evaluate evaluate-full compare-authors network-diagnostics bench bench-sustained bench-audit load load-scale profile-load scale-test scenarios calibrate rescue plots clean
 
 $(RUNTIME): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -124,6 +124,12 @@ scenarios: $(STAMP)
 calibrate: $(STAMP)
 	$(BIN)/python -m experiments.calibrate --data $(DATA) --target $(TARGET) --profile $(PROFILE) \
 		--model $(MODEL)
+
+# Does confidence rescue a confidently wrong predictor? Recorded cars and pedestrians, each bounds
+# rule with confidence on and off, rescue_onset chosen on half the tracks, the other half reported:
+# results/rescue.{json,md}, docs/rescue.png (experiments/rescue.py). ARGS=--quick for a short run.
+rescue: $(STAMP)
+	$(BIN)/python -m experiments.rescue --model $(MODEL) $(ARGS)
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache

@@ -209,11 +209,11 @@ def test_all_inside_has_no_distance_outside() -> None:
     assert s["worst_outside_c_m"] == 0.0
 
 
-def _grid_figs(rows: dict[float, tuple[float, float]]) -> dict:
+def _grid_figs(rows: dict[float, tuple[float | None, float]]) -> dict:
     figs: dict = {}
     for onset, (wrong_cov, right_area) in rows.items():
         figs[f"wrong/on/uniform_mixture@{onset:g}"] = {
-            "calibration": {"car": {"coverage_c": wrong_cov}}
+            "calibration": {"car": {"coverage_c": 0.5, "coverage_c_informed": wrong_cov}}
         }
         figs[f"right/on/uniform_mixture@{onset:g}"] = {
             "calibration": {"car": {"mean_area_c_m2": right_area}}
@@ -228,6 +228,9 @@ def test_onset_choice_smallest_area_among_those_reaching_the_goal() -> None:
     figs = _grid_figs({0.0: (0.97, 90.0), 0.25: (0.98, 70.0), 0.5: (0.98, 60.0)})
     c = rescue.choose_onset(figs, "uniform_mixture", "car", [0.0, 0.25, 0.5])
     assert c["onset"] == 0.5 and not c["reached"]
+    figs = _grid_figs({0.0: (None, 90.0), 0.25: (0.9, 70.0)})
+    c = rescue.choose_onset(figs, "uniform_mixture", "car", [0.0, 0.25])
+    assert c["onset"] == 0.25 and not c["reached"]
 
 
 def test_classed_track_id() -> None:

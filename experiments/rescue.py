@@ -712,7 +712,7 @@ def plot(result: dict[str, Any], out: Path, half: str = "held_out") -> Path:
         {
             label.split("/", 1)[1]
             for label in result["figures"]
-            if label.endswith(("paper", "@chosen"))
+            if label.endswith("/paper") or (label.startswith("wrong/on/") and "@chosen" in label)
         }
     )
     for col, klass in enumerate(classes):
@@ -723,7 +723,8 @@ def plot(result: dict[str, Any], out: Path, half: str = "held_out") -> Path:
                     continue
                 ts = [p["since_switch_s"] for p in s["by_time"]]
                 conf, rule = setting.split("/")
-                name = f"{predictor}, confidence {conf}, {rule.replace('@chosen', '')}"
+                name = f"confidence {conf}, {rule.replace('@chosen', '')}"
+                name = name if predictor == "wrong" else None
                 for row, key in ((0, "coverage_c"), (1, "mean_area_c_m2")):
                     ys = [np.nan if p[key] is None else p[key] for p in s["by_time"]]
                     axes[row][col].plot(ts, ys, style, marker="o", ms=3,
@@ -732,11 +733,14 @@ def plot(result: dict[str, Any], out: Path, half: str = "held_out") -> Path:
         axes[0][col].set_ylabel("future positions in C (moving, +0.5…+3 s)")
         axes[1][col].set_ylabel("mean area of C (m²)")
         axes[1][col].set_xlabel("time since the predictor went wrong (s)")
+        axes[1][col].set_yscale("log")
         for row in (0, 1):
             axes[row][col].grid(alpha=0.3)
-    axes[0][0].legend(fontsize=6.5, loc="lower left")
+    axes[0][0].plot([], [], "k-", label="wrong predictor")
+    axes[0][0].plot([], [], "k--", label="right predictor")
+    axes[0][0].legend(fontsize=6.5, loc="lower right")
     fig.suptitle(
-        "Does confidence rescue a wrong predictor? " + sensor_tracks.SENSOR_ATTRIBUTION,
+        "Does confidence rescue a wrong predictor?\n" + sensor_tracks.SENSOR_ATTRIBUTION,
         fontsize=7,
     )
     fig.tight_layout()

@@ -620,7 +620,7 @@ EXACT_CASES = {
 
 def fifty_agent_answer():
     """A 50-agent answer to a 20-point check, as the service builds it (``model_construct``)."""
-    from service.api.schemas import CollisionCheckResponse, MultiCollisionCheckResponse
+    from service.wire.schemas import CollisionCheckResponse, MultiCollisionCheckResponse
 
     rng = np.random.default_rng(0)
     results = [
@@ -652,7 +652,7 @@ def bench_serialisation(n: int) -> dict[str, dict]:
     from starlette.responses import JSONResponse
 
     from service.api.routes.model_json import ModelJSONResponse
-    from service.api.schemas import MultiCollisionCheckResponse
+    from service.wire.schemas import MultiCollisionCheckResponse
 
     answer = fifty_agent_answer()
     field = create_model_field(
@@ -798,7 +798,7 @@ def bench_audit_in_process(model: Path, n: int, versions: int = 30) -> dict[str,
     from models.runtime import ValueModel
     from models.value_fields import engine_for, network_decision
     from reach.frames import Pose
-    from service.flows.audit import ServedVersion, fold, score
+    from service.runtime.audit import ServedVersion, fold, score
     from service.runtime.scheduler import FRTKey
 
     value_model = ValueModel.load(model)

@@ -36,8 +36,7 @@ def mix_set_costs(model: Path, repeats: int = 5) -> dict[str, float]:
     from reach.frames import Pose
     from scripts.fallback_cost import served_engine
     from scripts.load import make_humans
-    from service.flows.agents import fit_bounds
-    from service.flows.bounds import validate_prediction
+    from service.flows.bounds import control_bounds, validate_prediction
     from service.runtime.exact_worker import ExactTask
     from service.runtime.settings import Settings
 
@@ -47,7 +46,16 @@ def mix_set_costs(model: Path, repeats: int = 5) -> dict[str, float]:
     for human in make_humans(10, "cost", 20.0, random.Random(0)):
         p = human.prediction(0.0)
         mean, cov = validate_prediction(p["mean"], p["cov"], p["dt"], 64)
-        bounds = fit_bounds(mean, cov, p["dt"], 0.5, settings.gamma, settings.bounds_fit, settings)
+        bounds = control_bounds(
+            mean,
+            cov,
+            p["dt"],
+            0.5,
+            settings.gamma,
+            horizon=settings.horizon_s,
+            method=settings.bounds_fit,
+            limits=(settings.u1_limit, settings.u2_limit),
+        ).as_array()
         pose = Pose(human.x, human.y, human.heading)
         plain.append(ExactTask(pose, human.speed, bounds, engine))
         with_tubes.append(ExactTask(pose, human.speed, bounds, engine, tubes_upto=LOAD_MIX_TUBES))

@@ -9,8 +9,8 @@ import time
 
 import pytest
 
-from service.api.errors import StaleTimestampError
-from service.runtime.store import AgentState, AgentStore, InMemoryAgentStore, StoreFullError
+from service.runtime.stores import AgentState, AgentStore, InMemoryAgentStore, StoreFullError
+from service.wire.errors import StaleTimestampError
 
 
 class FakeClock:

@@ -298,7 +298,7 @@ def test_sdk_reads_the_audit_and_sets_a_coverage_target(live_server) -> None:
 
 
 def test_ledger_keeps_only_versions_that_can_still_cover_and_forgets_idle_agents() -> None:
-    from service.flows.audit import AuditLedger, ServedVersion
+    from service.runtime.audit import AuditLedger, ServedVersion
     from service.runtime.scheduler import FRTKey
 
     now = [0.0]

@@ -8,8 +8,8 @@ import numpy as np
 
 from models.runtime import ValueModel
 from models.value_fields import engine_for
+from reach.batch import box_clearances, tube_clearances
 from reach.frames import Pose
-from service.flows.batch import box_clearances, tube_clearances
 
 BOUNDS = np.array([-0.3, -2.0, -0.2, -1.0, 0.3, 1.5, 0.25, 2.0])
 

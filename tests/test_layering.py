@@ -94,3 +94,58 @@ def test_importing_reach_loads_neither_service_nor_models() -> None:
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[]"
+
+
+#: The packages of ``service/`` from the bottom up: a module may import its own package and the
+#: ones below it, never one above (``service/wire/__init__.py``).
+SERVICE_TIERS = ("wire", "runtime", "flows", "api")
+
+
+def _service_imports(path: Path) -> set[str]:
+    """The ``service`` sub-packages ``path`` imports (``service.flows.agents`` -> ``flows``)."""
+    names: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        modules: list[str] = []
+        if isinstance(node, ast.Import):
+            modules = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            modules = [node.module]
+            if node.module == "service":
+                modules = [f"service.{a.name}" for a in node.names]
+        names.update(m.split(".")[1] for m in modules if m.startswith("service.") and "." in m)
+    return names
+
+
+@pytest.mark.parametrize("tier", SERVICE_TIERS)
+def test_service_packages_import_downwards_only(tier: str) -> None:
+    rank = SERVICE_TIERS.index(tier)
+    files = _files(f"service/{tier}")
+    assert files, f"no sources in service/{tier}"
+    offenders = {
+        str(f.relative_to(ROOT)): sorted(above)
+        for f in files
+        if (above := {p for p in _service_imports(f) if p in SERVICE_TIERS[rank + 1 :]})
+    }
+    assert offenders == {}
+
+
+def test_every_service_module_is_in_a_tier() -> None:
+    packages = {p.name for p in (ROOT / "service").iterdir() if (p / "__init__.py").exists()}
+    assert packages == set(SERVICE_TIERS)
+
+
+def test_the_wire_knows_no_web_framework() -> None:
+    offenders = {
+        str(f.relative_to(ROOT)): sorted(_imports(f) & {"fastapi", "starlette"})
+        for f in _files("service/wire")
+        if _imports(f) & {"fastapi", "starlette"}
+    }
+    assert offenders == {}
+
+
+def test_the_tier_scan_sees_an_upward_import(tmp_path: Path) -> None:
+    module = tmp_path / "m.py"
+    module.write_text(
+        "def f():\n    from service.flows.agents import observe\n    import service.api\n"
+    )
+    assert _service_imports(module) == {"flows", "api"}

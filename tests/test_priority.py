@@ -7,15 +7,15 @@ from types import SimpleNamespace
 
 import pytest
 
-from service.api.errors import AgentNotFoundError
-from service.api.schemas import (
+from service.flows import agents, checks
+from service.runtime.priority import ChecksFirst
+from service.runtime.settings import Settings
+from service.wire.errors import AgentNotFoundError
+from service.wire.schemas import (
     CollisionCheckRequest,
     MultiCollisionCheckRequest,
     ObservationRequest,
 )
-from service.flows import agents, checks
-from service.runtime.priority import ChecksFirst
-from service.runtime.settings import Settings
 from tests.fixtures.payloads import observation
 
 TRAJECTORY = [{"t": 0.1 * i, "x": 20.0, "y": 0.0} for i in range(3)]

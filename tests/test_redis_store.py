@@ -22,8 +22,8 @@ from typing import Any
 
 import pytest
 
-from service.api.errors import FieldError, ServiceUnavailableError, StaleTimestampError
-from service.runtime.store import AgentState, AgentStore, StoreFullError, make_store
+from service.runtime.stores import AgentState, AgentStore, StoreFullError, make_store
+from service.wire.errors import FieldError, ServiceUnavailableError, StaleTimestampError
 
 # ----------------------------------------------------------------------------- shared helpers
 
@@ -139,7 +139,7 @@ def redis_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[RedisServ
 
 def make(server: RedisServer, **kwargs: Any) -> Any:
     """A RedisAgentStore on ``server`` with its own key prefix (tests don't see each other)."""
-    from service.runtime.redis_store import RedisAgentStore
+    from service.runtime.stores.redis import RedisAgentStore
 
     options: dict[str, Any] = {"ttl_s": 60.0, "max_agents": 100, "prefix": f"t{uuid.uuid4().hex}:"}
     options.update(kwargs)
@@ -189,7 +189,7 @@ pytestmark = pytest.mark.timeout(120)
 
 
 def test_make_store_picks_redis_from_the_url(redis_server: RedisServer) -> None:
-    from service.runtime.redis_store import RedisAgentStore
+    from service.runtime.stores.redis import RedisAgentStore
 
     async def go() -> None:
         store = make_store(redis_server.url, ttl_s=10.0, max_agents=5)
@@ -374,7 +374,7 @@ def test_an_unconfirmed_write_past_the_wait_is_a_504(redis_server: RedisServer) 
     """Sent, never answered, Redis not back in time: the outcome is unknown, so not a 503."""
     import redis.exceptions
 
-    from service.runtime.redis_store import StoreOutcomeUnknownError
+    from service.runtime.stores.redis import StoreOutcomeUnknownError
 
     async def go() -> None:
         store = make(redis_server, unavailable_wait_s=0.2)
@@ -392,7 +392,7 @@ def test_an_unconfirmed_write_past_the_wait_is_a_504(redis_server: RedisServer) 
 
 
 def test_redis_down_is_a_503_not_a_500() -> None:
-    from service.runtime.redis_store import RedisAgentStore
+    from service.runtime.stores.redis import RedisAgentStore
 
     async def go() -> None:
         store = RedisAgentStore(

@@ -22,9 +22,9 @@ from reach.frames import Pose
 from reach.notch import NOTCH_STAGES
 from service.runtime.exact_worker import ExactTask
 from service.runtime.metrics import Metrics
+from service.runtime.model_loading import refine_by_notch_cut
 from service.runtime.refiner import Refinement
 from service.runtime.scheduler import FRTKey, FRTScheduler
-from service.runtime.services import refine_by_notch_cut
 
 MODEL = Path(__file__).resolve().parent.parent / "models" / "frt_unicycle.onnx"
 NAMED = {s.name: s for s in SETTINGS}

@@ -1,11 +1,11 @@
-"""Tubes drawn within a check's deadline (service.flows.tube_builder), on a fake clock."""
+"""Tubes drawn within a check's deadline (service.runtime.tube_builder), on a fake clock."""
 
 from __future__ import annotations
 
 import pytest
 
-from service.flows import tube_builder
-from service.flows.tube_builder import TubeBuilder
+from service.runtime import tube_builder
+from service.runtime.tube_builder import TubeBuilder
 
 DRAW_S = 0.002
 

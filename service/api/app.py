@@ -10,13 +10,13 @@ from fastapi import Depends, FastAPI
 
 from service.api.auth import BearerAuthMiddleware, bearer_scheme
 from service.api.errors import install_error_handlers
-from service.api.limits import openapi_with_limits
 from service.api.middleware import BodySizeLimitMiddleware, RequestContextMiddleware
 from service.api.routes import agents, collision, contours, health, model, stateless, stream, viewer
 from service.api.routes.params import query_parameters_checked
 from service.runtime.logs import configure_logging
 from service.runtime.services import Services
 from service.runtime.settings import Settings, get_settings
+from service.wire.limits import openapi_with_limits
 
 DESCRIPTION = """Confidence-aware forward reachable tubes (FRTs) of human-driven cars.
 

@@ -12,8 +12,8 @@ from urllib.parse import parse_qs
 from fastapi.security import HTTPBearer
 from starlette.types import ASGIApp, Receive, Scope, Send
 
-from service.api.errors import UnauthorizedError
 from service.api.middleware import send_json
+from service.wire.errors import UnauthorizedError
 
 PROTECTED_PREFIX = "/v1/"
 

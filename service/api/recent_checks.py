@@ -12,7 +12,7 @@ from collections import deque
 from collections.abc import Sequence
 from typing import Any
 
-from service.api.schemas import CollisionCheckRequest, CollisionCheckResponse
+from service.wire.schemas import CollisionCheckRequest, CollisionCheckResponse
 
 #: Checks kept, and how long one counts as the planner's current trajectory.
 KEEP = 64

@@ -31,8 +31,10 @@ from typing import Any
 from pydantic import BaseModel, TypeAdapter, ValidationError
 
 from service.api import recent_checks
-from service.api.errors import AgentNotFoundError, APIError, validation_payload
-from service.api.schemas import (
+from service.flows import agents, checks, contours, stateless
+from service.runtime.services import Services
+from service.wire.errors import AgentNotFoundError, APIError, validation_payload
+from service.wire.schemas import (
     AgentId,
     CollisionCheckRequest,
     ContourQuery,
@@ -41,8 +43,6 @@ from service.api.schemas import (
     ObservationRequest,
     Radius,
 )
-from service.flows import agents, checks, contours, stateless
-from service.runtime.services import Services
 
 log = logging.getLogger("frt.stream")
 

@@ -5,7 +5,7 @@ NeurIPS 34 (arXiv:2106.00170), their update ``alpha_{t+1} = alpha_t + eta (alpha
 ``err_t`` = 1 when the set built at level ``alpha_t`` misses the outcome. Here the level is gamma,
 the Gaussian mass each control interval holds (API.md, "Observation"): sets grow with gamma, as the
 conformal sets grow as alpha falls. With ``a = 1 - target`` (the miss rate to hold) and one step
-per audited position (``service.flows.audit``):
+per audited position (``service.runtime.audit``):
 
     g <- max(g + eta (err - a), GAMMA_MIN),    err = 1 if the position is outside C,
 

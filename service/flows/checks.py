@@ -21,10 +21,18 @@ from typing import Any
 
 import numpy as np
 
+from reach.batch import box_clearances, tube_clearances
 from reach.sets import BoxTubeSet, FRTSet
-from service.api.errors import AgentNotFoundError, FieldError
-from service.api.limits import check_agents, check_trajectory
-from service.api.schemas import (
+from service.flows.agent_config import AgentConfig
+from service.flows.confidence import Belief
+from service.runtime.jobs import FRTJob
+from service.runtime.services import Services
+from service.runtime.settings import Settings
+from service.runtime.stores import AgentState
+from service.runtime.tube_builder import within_built_tubes
+from service.wire.errors import AgentNotFoundError, FieldError
+from service.wire.limits import check_agents, check_trajectory
+from service.wire.schemas import (
     CollisionAnswer,
     CollisionCheckRequest,
     CollisionCheckResponse,
@@ -32,13 +40,6 @@ from service.api.schemas import (
     MultiCollisionCheckResponse,
     TrajectoryPoint,
 )
-from service.flows.agents import effective_config
-from service.flows.batch import box_clearances, tube_clearances
-from service.flows.confidence import Belief
-from service.flows.tube_builder import within_built_tubes
-from service.runtime.services import FRTJob, Services
-from service.runtime.settings import Settings
-from service.runtime.store import AgentState
 
 log = logging.getLogger("frt.checks")
 
@@ -182,20 +183,34 @@ async def answer_states(
         asyncio.get_running_loop().call_soon(
             _measure_exact_answer, services, found[skipped], xy, t_rel[skipped]
         )
-    if timeline.done - arrival > deadline_ms / 1000.0:
-        services.metrics.deadline_misses.inc()
-        log.warning(
-            "collision check answered after its deadline",
-            extra={
-                "deadline_ms": deadline_ms,
-                "elapsed_ms": round((timeline.done - arrival) * 1e3, 3),
-                **timeline.phases_ms(),
-                "agents": len(states),
-                "not_ready": not_ready,
-                "no_time": no_time,
-            },
-        )
+    _note_deadline(services, timeline, deadline_ms, len(states), not_ready, no_time)
     return results
+
+
+def _note_deadline(
+    services: Services,
+    timeline: _Timeline,
+    deadline_ms: float,
+    agents: int,
+    not_ready: int,
+    no_time: int,
+) -> None:
+    """Count and log a check answered after its deadline, with its phases."""
+    elapsed_s = timeline.done - timeline.arrival
+    if elapsed_s <= deadline_ms / 1000.0:
+        return
+    services.metrics.deadline_misses.inc()
+    log.warning(
+        "collision check answered after its deadline",
+        extra={
+            "deadline_ms": deadline_ms,
+            "elapsed_ms": round(elapsed_s * 1e3, 3),
+            **timeline.phases_ms(),
+            "agents": agents,
+            "not_ready": not_ready,
+            "no_time": no_time,
+        },
+    )
 
 
 async def _exact_sets_in_time(
@@ -318,7 +333,7 @@ def _measure_exact_answer(
     if not frt.clearance_from_tubes:
         return
     if t_rel is not None and frt.missing_tubes(frt.tube_indices(t_rel).tolist()):
-        return  # drawing tubes is the tube builder's to time (service.flows.tube_builder)
+        return  # drawing tubes is the tube builder's to time (service.runtime.tube_builder)
     start = time.perf_counter()
     tube_clearances([frt], xy, [t_rel])
     services.answer_costs.exact.record(time.perf_counter() - start, 1)
@@ -335,7 +350,7 @@ def _fit_tubes_to_deadline(
     """Draw the tubes a time-indexed check needs, agent by agent, where all of an agent's fit in
     the check's budget (:func:`wait_budget_s`, less the ``answer_s`` that answering then takes) at
     the learned cost, reading the clock before each; check the agents still lacking some against
-    tubes already drawn (``service.flows.tube_builder``), changing their ``t_rel`` in place, and draw
+    tubes already drawn (``service.runtime.tube_builder``), changing their ``t_rel`` in place, and draw
     the rest between requests. Returns the agents answered so (conservatively)."""
     until = time.perf_counter() + wait_budget_s(arrival, deadline_ms, services.settings) - answer_s
     per_tube = services.tubes.cost.upper_s(1)
@@ -373,7 +388,7 @@ def _respond_all(
         [
             request.collision_radius
             if request.collision_radius is not None
-            else float(effective_config(settings, state.config)["collision_radius"])
+            else float(AgentConfig.of(settings, state.config).collision_radius)
             for state in states
         ],
         dtype=np.float64,

@@ -6,11 +6,11 @@ from pydantic import ValidationError
 from starlette.concurrency import run_in_threadpool
 
 from reach.sets import FRTSet
-from service.api.errors import AgentNotFoundError, FieldError, dotted
-from service.api.limits import check_slices
-from service.api.schemas import ContourPair, ContourQuery, Contours, ContourSlice, ContoursResponse
-from service.flows.agents import effective_config
+from service.flows.agent_config import AgentConfig
 from service.runtime.services import Services
+from service.wire.errors import AgentNotFoundError, FieldError, dotted
+from service.wire.limits import check_slices
+from service.wire.schemas import ContourPair, ContourQuery, Contours, ContourSlice, ContoursResponse
 
 
 def parse_query(slices: str | None, include: str | None, tube: bool) -> ContourQuery:
@@ -65,7 +65,7 @@ async def agent_contours(
         raise AgentNotFoundError(agent_id)
     radius = collision_radius
     if radius is None:
-        radius = float(effective_config(settings, state.config)["collision_radius"])
+        radius = float(AgentConfig.of(settings, state.config).collision_radius)
     job = services.job_for(state)
     exact = await services.exact_within(job, settings.exact_timeout_s)
 

@@ -22,7 +22,7 @@ Everything is on log-probabilities, as in ``service.flows.confidence``.
 Modes are identified by their place in the list: the posterior of mode m carries over to mode m of
 the next prediction when it has as many modes; otherwise the mode belief restarts from the new
 weights, keeping the marginal belief over beta. With one mode the joint belief is the
-single-Gaussian filter's.
+single-Gaussian filter's, step for step (the same floating-point operations).
 
 The served set is the union of the per-mode tubes (``reach.union``), each from its mode's own
 bounds (its own beta), over the fewest most probable modes holding ``mode_mass`` of the posterior,
@@ -127,11 +127,14 @@ class JointBelief:
         sigma = np.asarray(covs, dtype=np.float64)
         if mu.ndim != 2 or mu.shape[0] != self.weights.size or sigma.shape[0] != mu.shape[0]:
             raise ValueError(f"need one mean and cov per mode: {mu.shape}, {sigma.shape}")
-        rows = []
-        for m in range(mu.shape[0]):
-            ll = log_likelihoods(prior.betas, action, mu[m], sigma[m])
-            _, log_det = np.linalg.slogdet(0.5 * (sigma[m] + sigma[m].T))
-            rows.append(ll - 0.5 * log_det)
+        log_dets = np.array([np.linalg.slogdet(0.5 * (s + s.T))[1] for s in sigma])
+        # Relative to the smallest: a constant shared by every pair, which the normalisation
+        # cancels; with one mode it is 0, and the step is the single-Gaussian filter's exactly.
+        log_dets -= log_dets.min()
+        rows = [
+            log_likelihoods(prior.betas, action, mu[m], sigma[m]) - 0.5 * log_dets[m]
+            for m in range(mu.shape[0])
+        ]
         return JointBelief(prior.betas, prior.weights, prior.log_probs + np.stack(rows))
 
     @property
@@ -147,10 +150,9 @@ class JointBelief:
 
     @property
     def mode_betas(self) -> np.ndarray:
-        """Each mode's point estimate E[beta | m] [M], inside [beta_low, 1]."""
-        conditional = np.exp(self.log_probs - _logsumexp(self.log_probs, axis=1)[:, None])
-        conditional /= conditional.sum(axis=1, keepdims=True)
-        return np.clip(conditional @ self.betas, self.betas[0], self.betas[-1])
+        """Each mode's point estimate E[beta | m] [M], inside [beta_low, 1]: the point estimate
+        of its conditional belief b(beta | m), computed as the single-Gaussian filter's."""
+        return np.array([Belief(self.betas, row).beta for row in self.log_probs])
 
     def beta_belief(self) -> Belief:
         """The marginal belief over beta."""

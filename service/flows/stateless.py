@@ -12,14 +12,17 @@ from __future__ import annotations
 import numpy as np
 from starlette.concurrency import run_in_threadpool
 
+from reach.agent_classes import DEFAULT_CLASS, agent_class
 from reach.frames import Pose
-from service.api.errors import FieldError
-from service.api.limits import check_slices, check_trajectory
-from service.api.schemas import ContourQuery, ControlBoundsOut, FRTRequest, FRTResponse
-from service.flows.agents import check_ranges, fit_bounds, validated_prediction
+from service.flows.agent_config import AgentConfig
 from service.flows.checks import answer, wait_budget_s
 from service.flows.contours import build
-from service.runtime.services import FRTJob, Services
+from service.flows.next_state import check_ranges, class_limits, mode_bounds, observed_prediction
+from service.runtime.jobs import FRTJob
+from service.runtime.services import Services
+from service.wire.errors import FieldError
+from service.wire.limits import check_slices, check_trajectory
+from service.wire.schemas import ContourQuery, ControlBoundsOut, FRTRequest, FRTResponse
 
 
 def request_bounds(services: Services, request: FRTRequest) -> np.ndarray:
@@ -41,18 +44,16 @@ def request_bounds(services: Services, request: FRTRequest) -> np.ndarray:
         raise FieldError("control_bounds", "give control_bounds, or a prediction and beta")
     if request.beta is None:
         raise FieldError("beta", "required with a prediction")
-    mean, cov = validated_prediction(request.prediction, settings)
-    return fit_bounds(
-        mean,
-        cov,
-        request.prediction.dt,
-        request.beta,
-        request.gamma if request.gamma is not None else settings.gamma,
-        request.bounds_fit or settings.bounds_fit,
-        settings,
-        rule=request.bounds_rule or settings.bounds_rule,
-        onset=request.rescue_onset if request.rescue_onset is not None else settings.rescue_onset,
-    )
+    prediction = observed_prediction(request.prediction, settings)
+    shaping = {
+        "gamma": request.gamma,
+        "bounds_fit": request.bounds_fit,
+        "bounds_rule": request.bounds_rule,
+        "rescue_onset": request.rescue_onset,
+    }
+    config = AgentConfig.of(settings, shaping)
+    limits = class_limits(agent_class(DEFAULT_CLASS), settings)
+    return np.array(mode_bounds(prediction, 0, request.beta, config, settings, limits))
 
 
 async def stateless_frt(services: Services, request: FRTRequest, arrival: float) -> FRTResponse:
@@ -61,7 +62,7 @@ async def stateless_frt(services: Services, request: FRTRequest, arrival: float)
     horizon = services.horizon_s()
     bounds = request_bounds(services, request)
     field = "prediction" if request.control_bounds is None else "control_bounds"
-    check_ranges(engine, request.state.speed, bounds, bounds_field=field)
+    check_ranges(engine, agent_class(DEFAULT_CLASS), request.state.speed, bounds, field)
     query = request.contours
     if query is None and request.trajectory is None:
         query = ContourQuery()

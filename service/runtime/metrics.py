@@ -17,7 +17,12 @@ class Metrics:
 
     def __init__(self) -> None:
         self.registry = CollectorRegistry()
-        r = self.registry
+        self._define_latencies(self.registry)
+        self._define_sets(self.registry)
+        self._define_answers(self.registry)
+        self._define_audit(self.registry)
+
+    def _define_latencies(self, r: CollectorRegistry) -> None:
         self.request_seconds = Histogram(
             "frt_http_request_duration_seconds",
             "HTTP request latency, by route template, method and status",
@@ -32,6 +37,8 @@ class Metrics:
             buckets=LATENCY_BUCKETS,
             registry=r,
         )
+
+    def _define_sets(self, r: CollectorRegistry) -> None:
         self.event_loop_tubes = Counter(
             "frt_event_loop_tubes",
             "Tubes of exact sets drawn on the server's event loop for time-indexed checks (the "
@@ -75,6 +82,8 @@ class Metrics:
         self.frt_failures = Counter(
             "frt_exact_failures", "Exact-FRT computations that raised", registry=r
         )
+
+    def _define_answers(self, r: CollectorRegistry) -> None:
         self.collision_checks = Counter(
             "frt_collision_checks",
             "Per-agent collision answers, by the set they came from",
@@ -94,6 +103,8 @@ class Metrics:
             "Collision checks answered after their deadline",
             registry=r,
         )
+
+    def _define_audit(self, r: CollectorRegistry) -> None:
         self.audit_positions = Counter(
             "frt_audit_positions",
             "Coverage audit: observed positions scored against an earlier version of their agent's "

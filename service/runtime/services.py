@@ -7,82 +7,38 @@ the model-dependent routes answer 503 until it is loaded (or for good, if it can
 from __future__ import annotations
 
 import asyncio
-import contextlib
-import functools
 import logging
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from concurrent.futures import Future
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
-import numpy as np
 from starlette.concurrency import run_in_threadpool
 from starlette.requests import HTTPConnection
 
-from models.runtime import ModelCard, ValueModel
-from models.value_fields import engine_for, network_decision
-from reach.contract import BOUND_COLUMNS
+from models.runtime import ModelCard
 from reach.engine import FRTEngine
-from reach.field_stack import compile_field_kernels
-from reach.frames import Pose
 from reach.notch import NOTCH_STAGES
-from reach.polygons import compile_polygon_kernel
 from reach.sets import FRTSet
 from reach.union import conservative_union
-from service.api.errors import ServiceUnavailableError
-from service.api.schemas import ActiveParts, NetworkPart
-from service.flows.audit import AuditLedger, RollingCoverage, Scored, score
-from service.flows.mode_states import set_bounds
-from service.flows.tube_builder import TubeBuilder
 from service.runtime.answer_cost import AnswerCosts
-from service.runtime.exact_worker import ExactTask, start_pool, warm_up_task
+from service.runtime.audit import AuditLedger, RollingCoverage, Scored, count_audited, score
+from service.runtime.exact_worker import ExactTask
+from service.runtime.jobs import FRTJob, job_for
 from service.runtime.memory import freeze_start_up_objects, keep_freed_memory
 from service.runtime.metrics import Metrics
+from service.runtime.model_loading import load_model
 from service.runtime.priority import ChecksFirst
-from service.runtime.refiner import Refinement
-from service.runtime.scheduler import FRTKey, FRTScheduler, LRUCache, timed
+from service.runtime.scheduler import FRTKey, FRTScheduler, LRUCache
 from service.runtime.settings import Settings
-from service.runtime.store import AgentState, AgentStore, make_store
+from service.runtime.stores import AgentState, AgentStore, make_store
+from service.runtime.tube_builder import TubeBuilder
 from service.runtime.tube_demand import TubeDemand
+from service.wire.errors import ServiceUnavailableError
+from service.wire.schemas import ActiveParts
 
 log = logging.getLogger("frt.services")
-
-
-@dataclass(frozen=True)
-class FRTJob:
-    """What one FRT depends on, and its cache key."""
-
-    key: FRTKey
-    pose: Pose
-    v_start: float
-    bounds: np.ndarray
-
-    @classmethod
-    def make(cls, agent_id: str, version: int, pose: Pose, v_start: float, bounds: Any) -> FRTJob:
-        bounds = np.asarray(bounds, dtype=np.float64)
-        inputs = (pose.x, pose.y, pose.heading, v_start, *bounds.ravel().tolist())
-        if bounds.size > len(BOUND_COLUMNS):  # a multi-modal set: one row per mode, a union
-            bounds = bounds.reshape(-1, len(BOUND_COLUMNS))
-        return cls(FRTKey.of(agent_id, version, inputs), pose, float(v_start), bounds)
-
-
-#: Enough for the largest multi-agent check (max_agents_per_check) twice over; each entry is a
-#: few objects the garbage collector walks, so not more.
-@functools.lru_cache(maxsize=512)
-def _job_of(
-    agent_id: str,
-    version: int,
-    x: float,
-    y: float,
-    heading: float,
-    v_start: float,
-    bounds: tuple[float, ...],
-) -> FRTJob:
-    """The job of an agent's state, made once per version (a planner checks each agent at 10 Hz;
-    the key's digest of the inputs is the cost). Keyed by every input, so it cannot go stale."""
-    return FRTJob.make(agent_id, version, Pose(x, y, heading), v_start, bounds)
 
 
 @dataclass
@@ -150,85 +106,20 @@ class Services:
         await self.store.close()
 
     def load_model(self) -> None:
-        """Load the ONNX model and its card and build the engine (blocking; runs in a thread)."""
-        path = self.settings.model_path
-        start = time.perf_counter()
-        try:
-            model = ValueModel.load(path)
-            network, reason = network_decision(model.card, self.settings.network)
-            engine = engine_for(model, network=network)
-            # Before readiness: a first call would stall the event loop (threads compute there).
-            compile_polygon_kernel()
-            compile_field_kernels()
-        except Exception as exc:  # a missing or broken model must not stop the service
-            self.model_error = f"model not loaded: {exc}"
-            log.error("model not loaded", extra={"model_path": str(path), "error": str(exc)})
+        """Load the ONNX model and its card and build the engine (blocking; runs in a thread);
+        a model that cannot load leaves the service answering 503 and says why."""
+        loaded = load_model(self.settings, self.scheduler, self.tubes)
+        if isinstance(loaded, str):
+            self.model_error = loaded
             return
-        # What a tube costs here, before a first check has to guess; a model whose ranges
-        # exclude the warm-up setting keeps the first guess.
-        with contextlib.suppress(Exception):
-            self.tubes.learn_cost(warm_up_task(engine)())
-        on_processes = self.settings.frt_executor == "process" and self._start_worker_processes(
-            path, engine, network
-        )
-        notch_cut = self.settings.frt_notch_cut and on_processes
-        self._tubes_in_workers = self.settings.frt_draw_tubes and on_processes
-        if notch_cut:
-            # Not on threads: 0.1-1 s of work per refinement would hold the event loop's GIL.
-            self.scheduler.refinement = refine_by_notch_cut
-        self.engine = engine
-        self.card = model.card
-        self.parts = ActiveParts(
-            geometry=["outer_bound", *(["notch_partition"] if notch_cut else [])],
-            value_network=NetworkPart(loaded=True, active=network, reason=reason),
-            bounds_rule=self.settings.bounds_rule,
-        )
-        self.model_name = model.card.name
+        self._tubes_in_workers = loaded.tubes_in_workers
+        self.engine = loaded.engine
+        self.card = loaded.card
+        self.parts = loaded.parts
+        self.model_name = loaded.card.name
         self.model_error = None
         freeze_start_up_objects()
         self.metrics.model_ready.set(1)
-        log.info(
-            "model loaded",
-            extra={
-                "model": model.card.name,
-                "model_path": str(path),
-                "seconds": round(time.perf_counter() - start, 3),
-            },
-        )
-
-    def _start_worker_processes(self, path: Path, engine: FRTEngine, network: bool) -> bool:
-        """Compute exact sets in worker processes (their engines loaded and warmed before the
-        server reports ready); if they cannot start, stay on threads and say why. Whether they
-        started."""
-        start = time.perf_counter()
-        workers = self.scheduler.workers
-        try:
-            pool = start_pool(
-                path,
-                workers,
-                self.settings.frt_worker_nice,
-                self.settings.frt_worker_policy,
-                network=network,
-            )
-        except Exception as exc:
-            log.warning(
-                "FRT worker processes not started: computing exact sets on threads",
-                extra={"error": repr(exc)},
-            )
-            return False
-        # A worker's first result costs more than the next ones (the first pickling there
-        # and unpickling here): one per worker before any request.
-        with contextlib.suppress(Exception):
-            for warm in [pool.submit(timed, warm_up_task(engine)) for _ in range(workers)]:
-                frt, _ = warm.result(60.0)
-            for kind, t in (("tube", None), ("slice", 1.0)):  # and the first contours drawn here
-                frt.geojson(kind, t, self.settings.collision_radius)
-        self.scheduler.use_executor(pool)
-        log.info(
-            "FRT worker processes started",
-            extra={"workers": workers, "seconds": round(time.perf_counter() - start, 3)},
-        )
-        return True
 
     def require_card(self) -> ModelCard:
         if self.card is None:
@@ -241,16 +132,9 @@ class Services:
         return self.engine
 
     # ------------------------------------------------------------------ FRT sets
-    def job_for(self, state: AgentState) -> FRTJob:
-        return _job_of(
-            state.agent_id,
-            state.frt_version,
-            state.x,
-            state.y,
-            state.heading,
-            state.speed,
-            tuple(set_bounds(state)),
-        )
+    @staticmethod
+    def job_for(state: AgentState) -> FRTJob:
+        return job_for(state)
 
     def forget(self, agent_id: str) -> None:
         """Drop every set of ``agent_id``, exact and conservative, and its queued exact set."""
@@ -261,7 +145,7 @@ class Services:
 
     def score_position(self, agent_id: str, x: float, y: float, t: float) -> list[Scored]:
         """The position (x, y) observed at ``t`` scored against the agent's earlier versions whose
-        horizon covers ``t`` (``service.flows.audit``); none if there are none."""
+        horizon covers ``t`` (``service.runtime.audit``); none if there are none."""
         versions = self.audit.covering(agent_id, t)
         return score(x, y, t, versions, self.scheduler.lookup) if versions else []
 
@@ -276,26 +160,8 @@ class Services:
         self.take_audit(agent_id, scored, t)
 
     def take_audit(self, agent_id: str, scored: Sequence[Scored], t: float) -> None:
-        """Count audited positions into the agent's counts and the ``frt_audit_*`` metrics (one
-        counter update per label set)."""
-        if not scored:
-            return
-        self.audit.add(agent_id, scored, t)
-        metrics = self.metrics
-        groups: dict[tuple[str, str], list[Scored]] = {}
-        for s in scored:
-            groups.setdefault((s.agent_class, s.source), []).append(s)
-        for (klass, source), members in groups.items():
-            metrics.audit_positions.labels(klass, source).inc(len(members))
-            for part, missed in (
-                ("K", sum(not s.in_k for s in members)),
-                ("C", sum(not s.in_c for s in members)),
-            ):
-                if missed:
-                    metrics.audit_misses.labels(part, klass, source).inc(missed)
-        in_k, in_c = self.coverage.add(scored)
-        metrics.audit_coverage.labels("K").set(in_k)
-        metrics.audit_coverage.labels("C").set(in_c)
+        """Count audited positions into the agent's counts and the ``frt_audit_*`` metrics."""
+        count_audited(self.metrics, self.audit, self.coverage, agent_id, scored, t)
 
     def submit(self, job: FRTJob) -> None:
         """Start computing the exact set of ``job`` in the background."""
@@ -381,13 +247,6 @@ class Services:
     def horizon_s(self) -> float:
         engine = self.engine
         return float(engine.horizon) if engine is not None else self.settings.horizon_s
-
-
-def refine_by_notch_cut(compute: Callable[[], Any], result: Any) -> Refinement | None:
-    """The scheduler's refinement (``FRT_FRT_NOTCH_CUT``): an exact set that could have a notch is
-    cut by each stage of the notch cut in turn once it is ready (``ExactTask.refinement``)."""
-    task = compute.refinement(result) if isinstance(compute, ExactTask) else None
-    return None if task is None else Refinement(task, stage=task.stage)
 
 
 def services_of(conn: HTTPConnection) -> Services:

@@ -8,7 +8,7 @@ as much as the set itself, so only the tubes this agent's checks have asked for 
 the largest index asked so far (a planner's trajectory spans the same horizon check after check).
 An agent no check has asked about yet, or one checked only against the whole tube, gets none
 beyond the whole tube: its first time-indexed check draws what it needs on the event loop within
-its budget (``service.flows.tube_builder``) and names the tubes its next versions come with.
+its budget (``service.runtime.tube_builder``) and names the tubes its next versions come with.
 """
 
 from __future__ import annotations

@@ -7,13 +7,13 @@ from typing import Annotated
 from fastapi import APIRouter, Query
 
 from service.api.routes.params import AgentIdPath, ServicesDep
-from service.api.schemas import (
+from service.flows import agents
+from service.wire.schemas import (
     AgentResponse,
     DeleteResponse,
     ObservationRequest,
     ObservationResponse,
 )
-from service.flows import agents
 
 router = APIRouter(prefix="/v1/agents", tags=["agents"])
 

@@ -8,13 +8,13 @@ from service.api import recent_checks
 from service.api.middleware import arrival_time
 from service.api.routes.model_json import ModelJSONResponse
 from service.api.routes.params import AgentIdPath, ServicesDep
-from service.api.schemas import (
+from service.flows import checks
+from service.wire.schemas import (
     CollisionCheckRequest,
     CollisionCheckResponse,
     MultiCollisionCheckRequest,
     MultiCollisionCheckResponse,
 )
-from service.flows import checks
 
 router = APIRouter(prefix="/v1", tags=["collision"])
 

@@ -7,8 +7,8 @@ from typing import Annotated
 from fastapi import APIRouter, Query
 
 from service.api.routes.params import AgentIdPath, ServicesDep, joined
-from service.api.schemas import ContoursResponse
 from service.flows import contours
+from service.wire.schemas import ContoursResponse
 
 router = APIRouter(prefix="/v1", tags=["frt"])
 

@@ -7,7 +7,7 @@ from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 
 from service.api.routes.params import ServicesDep
-from service.api.schemas import Health, Readiness
+from service.wire.schemas import Health, Readiness
 
 router = APIRouter(tags=["health"])
 

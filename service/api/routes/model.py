@@ -5,7 +5,7 @@ from __future__ import annotations
 from fastapi import APIRouter
 
 from service.api.routes.params import ServicesDep
-from service.api.schemas import ModelCardResponse
+from service.wire.schemas import ModelCardResponse
 
 router = APIRouter(prefix="/v1", tags=["model"])
 

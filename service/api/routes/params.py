@@ -8,9 +8,9 @@ from fastapi import Depends, Path
 from fastapi.routing import APIRoute
 from starlette.requests import HTTPConnection, Request
 
-from service.api.errors import FieldError
-from service.api.schemas import AGENT_ID_PATTERN
 from service.runtime.services import Services, services_of
+from service.wire.errors import FieldError
+from service.wire.schemas import AGENT_ID_PATTERN
 
 #: Query parameters that take a comma-separated list: a repeat adds to it (``slices=1&slices=2``
 #: is ``slices=1,2``; :func:`joined`).

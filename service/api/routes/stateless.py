@@ -6,8 +6,8 @@ from fastapi import APIRouter, Request
 
 from service.api.middleware import arrival_time
 from service.api.routes.params import ServicesDep
-from service.api.schemas import FRTRequest, FRTResponse
 from service.flows import stateless
+from service.wire.schemas import FRTRequest, FRTResponse
 
 router = APIRouter(prefix="/v1", tags=["frt"])
 

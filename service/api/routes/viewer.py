@@ -16,8 +16,8 @@ from fastapi import APIRouter, Request
 from fastapi.responses import FileResponse
 
 from service.api.auth import bearer_token, token_matches
-from service.api.errors import APIError, UnauthorizedError
 from service.runtime.services import services_of
+from service.wire.errors import APIError, UnauthorizedError
 
 VIEWER_DIR = Path(__file__).resolve().parent.parent / "viewer"
 MEDIA_TYPES = {

@@ -3,7 +3,7 @@
 Requests forbid unknown fields and non-finite numbers, so a typo or a NaN is a 422 that names the
 field. Array lengths have hard caps here (they bound parsing and show in the OpenAPI schema); the
 tighter limits of the server settings (``max_prediction_steps``, ``max_trajectory_points``,
-``max_agents_per_check``, ``max_slices``) are enforced by :mod:`service.api.limits`.
+``max_agents_per_check``, ``max_slices``) are enforced by :mod:`service.wire.limits`.
 """
 
 from __future__ import annotations

@@ -34,8 +34,9 @@ from typing import Any
 
 import numpy as np
 
+from reach.batch import box_clearances, tube_clearances
 from reach.sets import BoxTubeSet, FRTSet
-from service.flows.batch import box_clearances, tube_clearances
+from service.runtime.metrics import Metrics
 from service.runtime.scheduler import FRTKey
 
 #: Slack on "the horizon covers t" (float round-off of timestamps on a 0.1 s grid).
@@ -259,3 +260,32 @@ class RollingCoverage:
                 self._in_c += s.in_c
             n = len(self._k)
             return (self._in_k / n, self._in_c / n) if n else (1.0, 1.0)
+
+
+def count_audited(
+    metrics: Metrics,
+    ledger: AuditLedger,
+    coverage: RollingCoverage,
+    agent_id: str,
+    scored: Sequence[Scored],
+    t: float,
+) -> None:
+    """Count audited positions into the agent's counts, the fleet's rolling coverage and the
+    ``frt_audit_*`` metrics (one counter update per label set)."""
+    if not scored:
+        return
+    ledger.add(agent_id, scored, t)
+    groups: dict[tuple[str, str], list[Scored]] = {}
+    for s in scored:
+        groups.setdefault((s.agent_class, s.source), []).append(s)
+    for (klass, source), members in groups.items():
+        metrics.audit_positions.labels(klass, source).inc(len(members))
+        for part, missed in (
+            ("K", sum(not s.in_k for s in members)),
+            ("C", sum(not s.in_c for s in members)),
+        ):
+            if missed:
+                metrics.audit_misses.labels(part, klass, source).inc(missed)
+    in_k, in_c = coverage.add(scored)
+    metrics.audit_coverage.labels("K").set(in_k)
+    metrics.audit_coverage.labels("C").set(in_c)

@@ -2,7 +2,7 @@
 
 Layout (``prefix`` defaults to ``frt:``):
 
-- ``{prefix}agent:{agent_id}``: the agent's :class:`~service.runtime.store.AgentState` as JSON (never pickle),
+- ``{prefix}agent:{agent_id}``: the agent's :class:`~service.runtime.stores.AgentState` as JSON (never pickle),
   with a Redis expiry of the agent TTL, refreshed by every update;
 - ``{prefix}agents``: a sorted set of live agent ids scored by their expiry (ms, Redis clock), so the
   ``max_agents`` check and :meth:`RedisAgentStore.count` need no ``SCAN``.
@@ -17,7 +17,7 @@ updates of one agent from any number of replicas are serialised and none is lost
 therefore run more than once per update: it must be pure (no side effects beyond its result).
 
 Redis being down or restarting is retried for ``unavailable_wait_s`` and then answered as a 503
-(:class:`~service.api.errors.ServiceUnavailableError`, with ``Retry-After``: nothing was written), never
+(:class:`~service.wire.errors.ServiceUnavailableError`, with ``Retry-After``: nothing was written), never
 as a 500. A write whose reply was lost with the connection is recognised on the next read (the
 stored value is the one this update wrote) and reported as done, not applied twice; if Redis stays
 away past the wait, its fate is unknown and the answer is a 504 (:class:`StoreOutcomeUnknownError`).
@@ -42,8 +42,8 @@ from redis.asyncio import BlockingConnectionPool, Redis
 from redis.asyncio.retry import Retry
 from redis.backoff import NoBackoff
 
-from service.api.errors import APIError, ServiceUnavailableError, StaleTimestampError
-from service.runtime.store import AgentState, StoreFullError, UpdateFn
+from service.runtime.stores import AgentState, StoreFullError, UpdateFn
+from service.wire.errors import APIError, ServiceUnavailableError, StaleTimestampError
 
 T = TypeVar("T")
 
@@ -136,7 +136,7 @@ class _CountedLock:
 
 
 class RedisAgentStore:
-    """:class:`~service.runtime.store.AgentStore` on Redis, through redis-py's asyncio client.
+    """:class:`~service.runtime.stores.AgentStore` on Redis, through redis-py's asyncio client.
 
     ``url`` is a redis-py URL (``redis://host:6379/0``, ``rediss://``, ``unix://``). The client is
     created here but connects on first use, so the store can be built outside an event loop.

@@ -6,10 +6,18 @@ The schemas carry fixed hard caps; these are the tighter, configurable ones.
 from __future__ import annotations
 
 from collections.abc import Sized
-from typing import Any
+from typing import Any, Protocol
 
-from service.api.errors import FieldError
-from service.runtime.settings import Settings
+from service.wire.errors import FieldError
+
+
+class RequestLimits(Protocol):
+    """The configurable limits (``service.runtime.settings.Settings`` has them)."""
+
+    max_prediction_steps: int
+    max_trajectory_points: int
+    max_agents_per_check: int
+    max_slices: int
 
 
 def check_length(field: str, value: Sized | None, limit: int) -> None:
@@ -17,26 +25,28 @@ def check_length(field: str, value: Sized | None, limit: int) -> None:
         raise FieldError(field, f"at most {limit} items allowed, got {len(value)}")
 
 
-def check_prediction_steps(field: str, mean: Sized, settings: Settings) -> None:
+def check_prediction_steps(field: str, mean: Sized, settings: RequestLimits) -> None:
     check_length(f"{field}.mean", mean, settings.max_prediction_steps)
 
 
-def check_trajectory(field: str, trajectory: Sized | None, settings: Settings) -> None:
+def check_trajectory(field: str, trajectory: Sized | None, settings: RequestLimits) -> None:
     check_length(field, trajectory, settings.max_trajectory_points)
 
 
-def check_agents(field: str, agent_ids: Sized | None, settings: Settings) -> None:
+def check_agents(field: str, agent_ids: Sized | None, settings: RequestLimits) -> None:
     check_length(field, agent_ids, settings.max_agents_per_check)
 
 
-def check_slices(field: str, slices: list[float], horizon_s: float, settings: Settings) -> None:
+def check_slices(
+    field: str, slices: list[float], horizon_s: float, settings: RequestLimits
+) -> None:
     check_length(field, slices, settings.max_slices)
     for i, t in enumerate(slices):
         if not 0.0 <= t <= horizon_s:
             raise FieldError(f"{field}.{i}", f"slice time {t} is outside [0, {horizon_s}] s")
 
 
-def openapi_with_limits(spec: dict[str, Any], settings: Settings) -> dict[str, Any]:
+def openapi_with_limits(spec: dict[str, Any], settings: RequestLimits) -> dict[str, Any]:
     """Write the settings' limits into the schema's ``maxItems`` (the models carry the hard caps),
     so clients and fuzzers see the limits this server enforces."""
     limits = {

@@ -1,0 +1,45 @@
+"""An agent's effective configuration: the server's settings overlaid with the agent's overrides.
+
+One frozen value per agent and observation; the fields are the per-agent keys of API.md
+(``config`` of an observation) that shape its sets. The agent's stored overrides (``AgentState.config``)
+stay a plain dict of JSON types, since a store serialises them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields, replace
+from typing import Any
+
+from service.runtime.settings import Settings
+
+
+@dataclass(frozen=True)
+class AgentConfig:
+    """What builds one agent's sets (paper: beta_low, gamma, epsilon; the service's others)."""
+
+    beta_low: float
+    gamma: float
+    epsilon: float
+    collision_radius: float
+    bounds_fit: str
+    bounds_rule: str
+    rescue_onset: float
+    coverage_target: float | None
+    coverage_step: float
+
+    @classmethod
+    def of(cls, settings: Settings, overrides: dict[str, Any]) -> AgentConfig:
+        """``settings`` overlaid with the non-null ``overrides`` of these fields."""
+        values = {name: getattr(settings, name) for name in CONFIG_KEYS}
+        values.update({k: v for k, v in overrides.items() if k in CONFIG_KEYS and v is not None})
+        return cls(**values)
+
+    def with_gamma(self, gamma: float) -> AgentConfig:
+        """The same configuration building its sets with ``gamma`` (adaptive gamma's)."""
+        return replace(self, gamma=gamma)
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+CONFIG_KEYS: tuple[str, ...] = tuple(f.name for f in fields(AgentConfig))

@@ -12,7 +12,6 @@ where it is cut (``reach.notch``), inside the partition's region.
 from __future__ import annotations
 
 import functools
-import threading
 from dataclasses import dataclass
 from typing import Any, overload
 
@@ -23,6 +22,7 @@ from shapely.geometry.base import BaseGeometry
 
 from reach.field_stack import FAR
 from reach.frames import Pose
+from reach.memo import Memo
 from reach.notch import NotchCut
 from reach.outer_bound import OuterBound
 from reach.partition import bins_union, grown_to_hold, swept_supports
@@ -190,8 +190,8 @@ class FieldTubeSet(FRTSet):
         #: Whether some instant's heading interval passes +-NOTCH_HEADING: a cut could tighten
         #: this set (``FRTEngine.exact(notch_cut=True)``).
         self.notch_possible = notch_possible
-        self._notch_regions: dict[tuple[int, bool, bool], BaseGeometry] = {}
-        self._notch_tubes: dict[int, BaseGeometry] = {}
+        self._notch_regions: Memo[tuple[int, bool, bool], BaseGeometry] = Memo()
+        self._notch_tubes: Memo[int, BaseGeometry] = Memo()
         self.lattice = lattice
         self.instant = instant
         self.sweep = sweep
@@ -208,34 +208,34 @@ class FieldTubeSet(FRTSet):
             self.outer_held[:] = False  # the outer tube's windows are not the intervals
         #: Whether no value field cuts any instant: each instant's field is its outer polygon's.
         self.instants_uncut = instants_uncut
-        self._tubes: dict[int, BaseGeometry] = {}
-        self._slices: dict[int, BaseGeometry] = {}
-        self._intervals: dict[int, BaseGeometry] = {}
-        #: Outer polygons of the windows (SWEEPS_PER_WINDOW), and their unions by window count.
-        self._outer_windows: np.ndarray | None = None
-        self._outer_unions: dict[int, BaseGeometry] = {}
-        self._hulls: dict[int, BaseGeometry] = {}
-        #: The last running minimum of the sweeps' fields taken (``_sweeps_minimum``).
-        self._last_minimum: tuple[int, SliceField | None] = (0, None)
-        self._lock = threading.Lock()
+        self._tubes: Memo[int, BaseGeometry] = Memo()
+        self._slices: Memo[int, BaseGeometry] = Memo()
+        self._intervals: Memo[int, BaseGeometry] = Memo()
+        #: Outer polygons of the windows, by window length (SWEEPS_PER_WINDOW), and their unions
+        #: by window count.
+        self._outer_windows: Memo[int, np.ndarray] = Memo()
+        self._outer_unions: Memo[int, BaseGeometry] = Memo()
+        self._hulls: Memo[int, BaseGeometry] = Memo()
+        #: The last running minimum of the sweeps' fields taken (``_sweeps_minimum``), by the
+        #: last sweep it covers.
+        self._last_minimum: Memo[int, SliceField] = Memo(maxsize=1)
 
     def __getstate__(self) -> dict[str, Any]:
-        """What crosses a process boundary: everything but the lock and the caches rebuilt on
-        demand (the outer windows' polygons and their unions, and the notch cut's polygons, which
-        would stay in the receiver's cache as objects its garbage collector walks and cost
-        pickling both ways; the tubes checks ask for are drawn before a set is sent, and a cut
-        set's are all drawn, so what they were drawn from is seldom needed there)."""
+        """What crosses a process boundary: everything but the caches rebuilt on demand (the
+        outer windows' polygons and their unions, and the notch cut's polygons, which would stay
+        in the receiver's cache as objects its garbage collector walks and cost pickling both
+        ways; the tubes checks ask for are drawn before a set is sent, and a cut set's are all
+        drawn, so what they were drawn from is seldom needed there)."""
         state = vars(self).copy()
-        del state["_lock"]
         instant, sweep = self._fields_needed()
         state.update(
             instant=self.instant.keeping(instant),
             sweep=self.sweep.keeping(sweep),
-            _outer_windows=None,
-            _outer_unions={},
-            _notch_regions={},
-            _notch_tubes={},
-            _last_minimum=(0, None),
+            _outer_windows=Memo(),
+            _outer_unions=Memo(),
+            _notch_regions=Memo(),
+            _notch_tubes=Memo(),
+            _last_minimum=Memo(maxsize=1),
         )
         return state
 
@@ -243,8 +243,11 @@ class FieldTubeSet(FRTSet):
         """Which instants' and which intervals' fields a slice, interval or tube not drawn yet
         may still be drawn from (the others are taken whole from outer polygons, or drawn)."""
         n = self.n_slices
-        with self._lock:
-            slices, intervals, tubes = set(self._slices), set(self._intervals), set(self._tubes)
+        slices, intervals, tubes = (
+            self._slices.key_set(),
+            self._intervals.key_set(),
+            self._tubes.key_set(),
+        )
         instant = ~(self.coarse | (self.instants_uncut & (np.arange(n) >= 1)))
         instant[list(slices)] = False
         sweep = np.zeros(n, dtype=bool)
@@ -258,20 +261,16 @@ class FieldTubeSet(FRTSet):
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         vars(self).update(state)
-        self._lock = threading.Lock()
 
     def _grow(self, k_set: BaseGeometry) -> BaseGeometry:
         return k_set.buffer(self.lattice.step / 2, quad_segs=4) if not k_set.is_empty else k_set
 
     def tube(self, j: int) -> BaseGeometry:
-        with self._lock:
-            cached = self._tubes.get(j)
-        if cached is not None:
-            return cached
+        return self._tubes.get_or_compute(j, lambda: self._draw_tube(j))
+
+    def _draw_tube(self, j: int) -> BaseGeometry:
         outer = self.outer_tube(j)
         if self._tube_is_outer(j):
-            with self._lock:
-                self._tubes[j] = outer
             return outer
         k_set = self._sweeps_minimum(j).contour(self.lattice)
         if not k_set.is_empty:
@@ -293,8 +292,6 @@ class FieldTubeSet(FRTSet):
             k_set = shapely.union_all([k_set, *self._window_polygons()[held]])
         if self.notch is not None:
             k_set = k_set.intersection(self._notch_tube(j))
-        with self._lock:
-            self._tubes[j] = k_set
         return k_set
 
     def _tube_is_outer(self, j: int) -> bool:
@@ -312,15 +309,12 @@ class FieldTubeSet(FRTSet):
     def _sweeps_minimum(self, j: int) -> SliceField:
         """``running_minimum(self.sweep[: j + 1])``, from the last one taken before j when there
         is one (checks and workers draw a set's tubes mostly in increasing order)."""
-        with self._lock:
-            start, below = self._last_minimum
+        start, below = next(iter(self._last_minimum.snapshot().items()), (0, None))
         if below is None or start > j:
             below, start = self.sweep[0], 0
         for i in range(start + 1, j + 1):
             below = running_minimum([below, self.sweep[i]])
-        with self._lock:
-            self._last_minimum = (j, below)
-        return below
+        return self._last_minimum.put(j, below)
 
     def _notch_region(self, j: int, before: bool = True, after: bool = True) -> BaseGeometry:
         """Every position reachable within half an instant of s_j, ``before`` and/or ``after`` it
@@ -330,10 +324,13 @@ class FieldTubeSet(FRTSet):
         notch = self.notch
         assert notch is not None
         key = (j, before, after) if notch.cut[j] else (j, True, True)
-        with self._lock:
-            cached = self._notch_regions.get(key)
-        if cached is not None:
-            return cached
+        return self._notch_regions.get_or_compute(
+            key, lambda: self._draw_notch_region(notch, j, before, after)
+        )
+
+    def _draw_notch_region(
+        self, notch: NotchCut, j: int, before: bool, after: bool
+    ) -> BaseGeometry:
         reach = float(notch.reach_m[j])
         if notch.cut[j]:
             i = int(np.count_nonzero(notch.cut[:j]))  # its row among the cut instants
@@ -350,8 +347,6 @@ class FieldTubeSet(FRTSet):
         else:
             polygon = shapely.Polygon(self.bound.polygons_at([self.bound_rows[j]])[0])
             region = grown_to_hold(polygon, reach)
-        with self._lock:
-            self._notch_regions[key] = region
         return region
 
     def _notch_tube(self, j: int) -> BaseGeometry:
@@ -359,8 +354,7 @@ class FieldTubeSet(FRTSet):
         s_(j-1) and the half instant before s_j (grown from the largest tube already built;
         nothing after s_j, and each instant's two halves apart, which is thinner than both
         together where the car heads away from the set)."""
-        with self._lock:
-            built = dict(self._notch_tubes)
+        built = self._notch_tubes.snapshot()
         if j in built:
             return built[j]
         start = max((i for i in built if i < j), default=-1)
@@ -369,31 +363,20 @@ class FieldTubeSet(FRTSet):
             tube = shapely.union_all(
                 [tube, self._notch_region(i - 1, before=False), self._notch_region(i, after=False)]
             )
-        with self._lock:
-            self._notch_tubes[j] = tube
-        return tube
+        return self._notch_tubes.put(j, tube)
 
     def missing_tubes(self, indices: list[int]) -> list[int]:
-        with self._lock:
-            return sorted(set(indices).difference(self._tubes))
+        return sorted(set(indices).difference(self._tubes.key_set()))
 
     def nearest_built_tube(self, j: int) -> int:
-        with self._lock:
-            later = [i for i in self._tubes if i >= j]
+        later = [i for i in self._tubes.key_set() if i >= j]
         return min(later) if later else self.n_slices - 1
 
     def _unresolved_hull(self, sweeps: list[int]) -> BaseGeometry:
         """The polygon of the support functions' maximum over ``sweeps``, which contains their
         hull (the same for every tube past the last unresolved instant: built once). The lists of
         one set are prefixes of each other (``_unresolved_sweeps``), so their length names them."""
-        key = len(sweeps)
-        with self._lock:
-            hull = self._hulls.get(key)
-        if hull is None:
-            hull = self._sweeps_polygon(sweeps)
-            with self._lock:
-                self._hulls[key] = hull
-        return hull
+        return self._hulls.get_or_compute(len(sweeps), lambda: self._sweeps_polygon(sweeps))
 
     def _sweeps_polygon(self, sweeps: list[int] | slice) -> BaseGeometry:
         """The polygon of the support functions' maximum over ``sweeps``: it holds every position
@@ -429,38 +412,31 @@ class FieldTubeSet(FRTSet):
             return shapely.union_all(convex_polygons(self.bound.directions, windows))
         count = n // chunk
         polygons = self._window_polygons()
-        with self._lock:
-            built = dict(self._outer_unions)
+        built = self._outer_unions.snapshot()
         if count in built:
             union = built[count]
         else:
             start = max((c for c in built if c < count), default=0)
             parts = list(polygons[start:count])
             union = shapely.union_all(parts if start == 0 else [built[start], *parts])
-        with self._lock:
-            self._outer_unions[count] = union
-        return union
+        return self._outer_unions.put(count, union)
 
     def _window_polygons(self) -> np.ndarray:
         """The outer polygon of each whole window of ``SWEEPS_PER_WINDOW`` sweeps (window i - 1
         spans interval i), built once per set."""
-        with self._lock:
-            polygons = self._outer_windows
-        if polygons is None:
-            chunk = SWEEPS_PER_WINDOW
-            support = self.bound.sweep_support
-            full = len(support) // chunk
-            windows = support[: full * chunk].reshape(full, chunk, -1).max(axis=1)
-            polygons = convex_polygons(self.bound.directions, windows)
-            with self._lock:
-                self._outer_windows = polygons
-        return polygons
+        return self._outer_windows.get_or_compute(SWEEPS_PER_WINDOW, self._draw_window_polygons)
+
+    def _draw_window_polygons(self) -> np.ndarray:
+        chunk = SWEEPS_PER_WINDOW
+        support = self.bound.sweep_support
+        full = len(support) // chunk
+        windows = support[: full * chunk].reshape(full, chunk, -1).max(axis=1)
+        return convex_polygons(self.bound.directions, windows)
 
     def slice(self, j: int) -> BaseGeometry:
-        with self._lock:
-            cached = self._slices.get(j)
-        if cached is not None:
-            return cached
+        return self._slices.get_or_compute(j, lambda: self._draw_slice(j))
+
+    def _draw_slice(self, j: int) -> BaseGeometry:
         polygon_only = self.coarse[j] or (self.instants_uncut and j >= 1)
         k_set = (
             shapely.Polygon() if polygon_only else self._grow(self.instant[j].contour(self.lattice))
@@ -472,18 +448,15 @@ class FieldTubeSet(FRTSet):
             k_set = polygon if polygon_only else k_set.intersection(polygon)
         if self.notch is not None and self.notch.cut[j]:
             k_set = k_set.intersection(self._notch_region(j, before=False, after=False))
-        with self._lock:
-            self._slices[j] = k_set
         return k_set
 
     def interval(self, j: int) -> BaseGeometry:
         """K over [s_(j-1), s_j]: {sweep_j <= 0} grown by the contour's corner chords and cut to
         the outer polygon of that window, or that polygon if either instant is unresolved."""
         j = max(j, 1)
-        with self._lock:
-            cached = self._intervals.get(j)
-        if cached is not None:
-            return cached
+        return self._intervals.get_or_compute(j, lambda: self._draw_interval(j))
+
+    def _draw_interval(self, j: int) -> BaseGeometry:
         polygon = self._sweeps_polygon(slice(self.bound_rows[j - 1], self.bound_rows[j]))
         if self.coarse[j] or self.coarse[j - 1] or self.outer_held[j]:
             k_set = polygon
@@ -498,8 +471,6 @@ class FieldTubeSet(FRTSet):
                     self._notch_region(j - 1, before=False), self._notch_region(j, after=False)
                 )
             )
-        with self._lock:
-            self._intervals[j] = k_set
         return k_set
 
 

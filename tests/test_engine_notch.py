@@ -87,7 +87,7 @@ def test_worker_processes_cut_as_the_server_engine_does(engines) -> None:
     finally:
         pool.shutdown()
     here = task()
-    assert there.notch is not None and there._notch_regions == {} == there._notch_tubes
+    assert there.notch is not None and len(there._notch_regions) == 0 == len(there._notch_tubes)
     assert there.missing_tubes(list(range(there.n_slices))) == []
     for j in (there.n_slices - 1, 17):
         assert there.tube(j).equals(here.tube(j))

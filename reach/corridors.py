@@ -177,7 +177,9 @@ class _Corridors:
 
         ``coupled_speed``: the speed along the corridor is a profile with bounded rates
         (``reach.speed_programme``, a linear programme per row and direction, solved together) instead
-        of taking either end of its interval at every instant independently."""
+        of taking either end of its interval at every instant independently.
+
+        A numeric kernel kept whole so its maths reads in one place."""
         m = initial_set
         grow = 1.0 + c / m.radius_m
         eps_th = (m.heading_margin_rad * grow)[:, None]

@@ -145,6 +145,8 @@ def outer_bound(
     ``bounds`` are the 8 bound columns in contract order (reach.contract.BOUND_COLUMNS).
     ``support_directions=0`` skips the support functions (boxes only: the service's conservative
     set needs nothing else, and the directions are two thirds of the work).
+
+    A numeric kernel kept whole so its maths reads in one place.
     """
     u1_lo_s, u2_lo_s, u1_lo_e, u2_lo_e, u1_hi_s, u2_hi_s, u1_hi_e, u2_hi_e = map(float, bounds)
     m = initial_set

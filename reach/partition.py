@@ -68,7 +68,9 @@ def partition_tubes(
     (tests/test_corridor_bound.py), not convex: with the speed coupled it cuts most of the notch
     behind a car that can turn round.
     ``partitioned_from_s``: instants before it take the interval outer bound's convex polygon
-    instead (early sets have no notch; the partition's cost is in the instants it runs on)."""
+    instead (early sets have no notch; the partition's cost is in the instants it runs on).
+
+    A numeric kernel kept whole so its maths reads in one place."""
     instants = np.arange(1, round(max(t_ends) / instant_s) + 1) * instant_s
     partitioned = instants >= partitioned_from_s - 1e-9
     support, empty = partition_supports(
@@ -211,6 +213,8 @@ def partition_supports(
     final heading bin and the waypoints before it narrow it), which covers them, so no split is
     spent where the bin cannot go (a split of the whole forward interval leaves bins empty).
     ``coupled_speed``: see ``_Corridors.supports`` (a linear programme per bin and direction).
+
+    A numeric kernel kept whole so its maths reads in one place.
     """
     times = np.asarray(times, dtype=float)
     counts = np.atleast_1d(np.asarray(waypoint_bins, dtype=int))

@@ -211,7 +211,9 @@ def _corridor_gain_rows(
     """:func:`corridor_gain` compiled: per row and direction, g on each sub-interval from the
     heading corridor (as ``reach.outer_bound.cos_max_towards``), the objective's weights, and the
     programme (the extreme profiles where the weights keep one sign, else the dynamic programme),
-    with no [N, S, M] array in memory."""
+    with no [N, S, M] array in memory.
+
+    A numeric kernel kept whole so its maths reads in one place."""
     rows, steps = th_lo.shape
     best = np.empty((rows, len(directions)))
     empty = np.zeros(rows, dtype=np.bool_)

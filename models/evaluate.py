@@ -76,7 +76,7 @@ TUBE_TIMES = (1.0, 2.0, 3.0)
 #: The partition outer reference (``partition_tubes``): 32 final-heading bins, each split into 8
 #: by the heading at a fifth of the time and each of those into 2 by the heading at half of it
 #: (waypoint bins, each over the interval its bin leaves), speed programmes on 120 sub-intervals,
-#: instants 0.05 s apart, each bin's polygon in 32 support directions (~6 s per setting).
+#: instants 0.05 s apart, each bin's polygon in 32 support directions.
 PARTITION_REFERENCE: dict[str, Any] = {
     "heading_bins": 32,
     "waypoint_bins": [8, 2],

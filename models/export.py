@@ -82,10 +82,10 @@ class Float64Graph(torch.nn.Module):
 
 
 class Float32Graph(torch.nn.Module):
-    """The same function in float32: ~3x faster in onnxruntime, within ~1e-4 of the contract graph.
+    """The same function in float32, which onnxruntime evaluates faster than the contract graph.
 
-    The service evaluates this one on its grids (models/<name>.fast.onnx); the card records the
-    measured difference, which calibration absorbs.
+    The service evaluates this one on its grids (models/<name>.fast.onnx); the card records its
+    measured difference from the contract graph, which calibration absorbs.
     """
 
     def __init__(self, net: ValueNetwork) -> None:

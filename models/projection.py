@@ -1,8 +1,9 @@
 """A small network for the (x, y) projection of the value function, distilled from the full one.
 
 K(s) = {(x, y): min over heading, speed of V(s, x, y, heading, speed) <= delta} (paper, "Safe
-Planning"). Evaluating that minimum with the full 14-D network costs ~9 evaluations per grid node;
-the service needs it on thousands of nodes per observation. This module distils
+Planning"). Evaluating that minimum with the full 14-D network costs one evaluation per stencil
+point at each grid node; the service needs it on thousands of nodes per observation. This module
+distils
 
     W(s, x, y; v_start, bounds) ~ min_stencil V(s, x, y, ., .; v_start, bounds)
 

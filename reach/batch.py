@@ -1,9 +1,9 @@
 """Clearances of one trajectory against many sets at once: conservative and exact.
 
 A planner's check of 50 agents whose exact sets are late answers from 50 :class:`BoxTubeSet`\\ s;
-``BoxTubeSet.clearance`` one by one is ~15 small numpy calls per agent. Here the agents' boxes are
-stacked ([A, M, 4]) and the distances of every point to every box of every agent come from one
-call of the same kernel (``reach.engine.box_union_distances``), so the values are the same.
+``BoxTubeSet.clearance`` one by one is a dozen small numpy calls per agent. Here the agents'
+boxes are stacked ([A, M, 4]) and the distances of every point to every box of every agent come
+from one call of the same kernel (``reach.engine.box_union_distances``), so the values are the same.
 """
 
 from __future__ import annotations
@@ -75,8 +75,8 @@ def tube_clearances(
 ) -> list[np.ndarray]:
     """``[s.clearance(xy_world, t) for s, t in zip(sets, t_rel)]`` for sets that answer with
     ``FRTSet.clearance`` (the exact sets): every agent's points against their tubes in one
-    vectorised call each, ~2x faster for a planner's 50 agents; the same values (the same GEOS
-    operations on the same geometries and points, the human frame by the same arithmetic)."""
+    vectorised call each; the same values (the same GEOS operations on the same geometries and
+    points, the human frame by the same arithmetic)."""
     xy_world = np.asarray(xy_world, dtype=float).reshape(-1, 2)
     if not sets:
         return []

@@ -1,7 +1,7 @@
 """Per-instant fields of one exact set, computed for every instant at once.
 
 An exact set (``reach.engine.FRTEngine.exact``) samples fields on one lattice, each instant in its
-own window (the outer-bound sweeps around that instant). Doing that window by window is ~30 small
+own window (the outer-bound sweeps around that instant). Doing that window by window is many small
 numpy calls per instant; here every window is padded to one shape ``(H, W)`` and the instants are
 stacked into ``[J, H, W]`` arrays, so each step is a handful of numpy calls for all instants. Nodes
 outside an instant's own window hold ``FAR`` (+inf) exactly as the per-window fields had none

@@ -85,9 +85,10 @@ def _whole_lattice(lattice: Lattice) -> tuple[np.ndarray, np.ndarray]:
 class SliceFields:
     """The fields of every slice of one set, held as few objects: offsets in two integer arrays and
     the values in a tuple of arrays (neither is traversed by the garbage collector, whose full
-    collections otherwise walked ~60 small objects per cached exact set: ~35 ms pauses with the
-    cache full). Indexing gives :class:`SliceField` views. A slice whose values were dropped
-    (:meth:`keeping`: nothing will be drawn from it) holds None and raises when asked for."""
+    collections would otherwise walk tens of small objects per cached exact set, a pause that
+    grows with the cache). Indexing gives :class:`SliceField` views. A slice whose values were
+    dropped (:meth:`keeping`: nothing will be drawn from it) holds None and raises when asked
+    for."""
 
     def __init__(
         self, k0: np.ndarray, i0: np.ndarray, values: tuple[np.ndarray | None, ...]

@@ -17,14 +17,14 @@ import numpy as np
 
 from reach.partition import WAYPOINT_AT
 
-#: The notch cut (``exact(notch_cut=True)``; the service refines its sets with it in the
-#: background, ``FRT_FRT_NOTCH_CUT``): instants whose heading interval passes NOTCH_HEADING (the car
-#: may head backwards, so the set may have a notch behind it) are cut to a speed-coupled partition
-#: (``models.corridor_bound.partition_supports``) of one of NOTCH_STAGES.
+#: The notch cut (``FRTEngine.exact(notch_cut=True)``; the service refines its sets with it in the
+#: background): instants whose heading interval passes NOTCH_HEADING (the car may head backwards,
+#: so the set may have a notch behind it) are cut to a speed-coupled partition
+#: (``reach.partition.partition_supports``) of one of NOTCH_STAGES.
 NOTCH_HEADING = math.pi / 2
 
-#: Whether the service refines its sets by the notch cut unless told otherwise
-#: (``FRT_FRT_NOTCH_CUT``): what ``make evaluate`` measures as served.
+#: Whether a set is refined by the notch cut unless its caller says otherwise: what
+#: ``make evaluate`` measures as served.
 NOTCH_CUT_BY_DEFAULT = True
 
 
@@ -66,8 +66,7 @@ class NotchCut:
     ``empty`` bins [C, B] and each bin's headings [C, B, 2], one row per cut instant in order; per
     instant the farthest a car moves in half an instant either side of it (``reach_m`` [J]), and
     how far its heading turns meanwhile; the stage that made it and its support directions [M].
-    (Only the cut instants' rows: a cached refined set keeps them for its slices, ~60 kB for the
-    first stage.)"""
+    (Only the cut instants' rows: a cached refined set keeps them for its slices.)"""
 
     cut: np.ndarray
     supports: np.ndarray

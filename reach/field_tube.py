@@ -145,6 +145,27 @@ def running_minimum(fields: list[SliceField]) -> SliceField:
     return SliceField(k0, i0, out)
 
 
+#: The memos of a :class:`FieldTubeSet` by attribute, with their size bound: the tubes, slices and
+#: intervals drawn; the outer polygons of the windows by window length (SWEEPS_PER_WINDOW) and
+#: their unions by window count; the sweeps' hulls; the notch cut's regions and tubes; and the last
+#: running minimum of the sweeps' fields taken (``_sweeps_minimum``), by the last sweep it covers.
+_MEMOS: dict[str, int | None] = {
+    "_tubes": None,
+    "_slices": None,
+    "_intervals": None,
+    "_outer_windows": None,
+    "_outer_unions": None,
+    "_hulls": None,
+    "_notch_regions": None,
+    "_notch_tubes": None,
+    "_last_minimum": 1,
+}
+#: The memos a set sent to another process leaves behind (rebuilt there on demand).
+_REBUILT_MEMOS = frozenset(
+    {"_outer_windows", "_outer_unions", "_notch_regions", "_notch_tubes", "_last_minimum"}
+)
+
+
 class FieldTubeSet(FRTSet):
     """The model's set from per-slice fields on one lattice; contours drawn lazily and cached.
 
@@ -191,8 +212,6 @@ class FieldTubeSet(FRTSet):
         #: Whether some instant's heading interval passes +-NOTCH_HEADING: a cut could tighten
         #: this set (``FRTEngine.exact(notch_cut=True)``).
         self.notch_possible = notch_possible
-        self._notch_regions: Memo[tuple[int, bool, bool], BaseGeometry] = Memo()
-        self._notch_tubes: Memo[int, BaseGeometry] = Memo()
         self.lattice = lattice
         self.instant = instant
         self.sweep = sweep
@@ -209,17 +228,6 @@ class FieldTubeSet(FRTSet):
             self.outer_held[:] = False  # the outer tube's windows are not the intervals
         #: Whether no value field cuts any instant: each instant's field is its outer polygon's.
         self.instants_uncut = instants_uncut
-        self._tubes: Memo[int, BaseGeometry] = Memo()
-        self._slices: Memo[int, BaseGeometry] = Memo()
-        self._intervals: Memo[int, BaseGeometry] = Memo()
-        #: Outer polygons of the windows, by window length (SWEEPS_PER_WINDOW), and their unions
-        #: by window count.
-        self._outer_windows: Memo[int, np.ndarray] = Memo()
-        self._outer_unions: Memo[int, BaseGeometry] = Memo()
-        self._hulls: Memo[int, BaseGeometry] = Memo()
-        #: The last running minimum of the sweeps' fields taken (``_sweeps_minimum``), by the
-        #: last sweep it covers.
-        self._last_minimum: Memo[int, SliceField] = Memo(maxsize=1)
 
     def __getstate__(self) -> dict[str, Any]:
         """What crosses a process boundary: everything but the caches rebuilt on demand (the
@@ -227,18 +235,21 @@ class FieldTubeSet(FRTSet):
         in the receiver's cache as objects its garbage collector walks and cost pickling both
         ways; the tubes checks ask for are drawn before a set is sent, and a cut set's are all
         drawn, so what they were drawn from is seldom needed there)."""
-        state = vars(self).copy()
         instant, sweep = self._fields_needed()
-        state.update(
-            instant=self.instant.keeping(instant),
-            sweep=self.sweep.keeping(sweep),
-            _outer_windows=Memo(),
-            _outer_unions=Memo(),
-            _notch_regions=Memo(),
-            _notch_tubes=Memo(),
-            _last_minimum=Memo(maxsize=1),
-        )
+        state = {
+            name: value
+            for name, value in vars(self).items()
+            if name not in _MEMOS or (name not in _REBUILT_MEMOS and len(value))
+        }
+        state.update(instant=self.instant.keeping(instant), sweep=self.sweep.keeping(sweep))
         return state
+
+    def __getattr__(self, name: str) -> Any:
+        """A memo of :data:`_MEMOS`, made on first use (a set received from a worker carries only
+        the memos that hold values: each one is an object its garbage collector walks)."""
+        if name not in _MEMOS:
+            raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+        return self.__dict__.setdefault(name, Memo(maxsize=_MEMOS[name]))
 
     def _fields_needed(self) -> tuple[np.ndarray, np.ndarray]:
         """Which instants' and which intervals' fields a slice, interval or tube not drawn yet

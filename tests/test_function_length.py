@@ -50,15 +50,7 @@ def _length(node: ast.AST) -> int:
     return node.end_lineno - node.lineno + 1
 
 
-@pytest.mark.parametrize(
-    "folder",
-    [
-        "reach",
-        pytest.param(
-            "service", marks=pytest.mark.xfail(strict=False, reason="service/ is being split")
-        ),
-    ],
-)
+@pytest.mark.parametrize("folder", ["reach", "service"])
 def test_no_function_runs_over_60_lines(folder: str) -> None:
     long = [
         f"{name} ({_length(node)} lines, {folder}:{node.lineno})"

@@ -20,6 +20,7 @@ from frt_client.models import (
     AgentContours,
     CollisionCheck,
     DeleteResult,
+    FrameResult,
     FRTResult,
     Health,
     ModelCard,
@@ -87,6 +88,31 @@ def observe(
         op="observe",
         message={"agent_id": agent_id, **body},
         params={"wait_frt_ms": wait_frt_ms} if wait_frt_ms > 0 else None,
+    )
+
+
+def frame(*, timestamp: float, agents: Iterable[Any]) -> Call[FrameResult]:
+    """One frame: per agent a mapping of ``agent_id``, ``state``, ``prediction`` and, as in
+    :func:`observe`, ``observed_action``, ``config``, ``agent_class``."""
+    entries = []
+    for i, agent in enumerate(agents):
+        if not isinstance(agent, dict) or "agent_id" not in agent:
+            raise ValidationError("each agent needs an agent_id", field=f"agents.{i}.agent_id")
+        entries.append(
+            inputs.without_none(
+                {
+                    "agent_id": agent["agent_id"],
+                    "state": inputs.state(agent.get("state")),
+                    "observed_action": inputs.action(agent.get("observed_action")),
+                    "prediction": inputs.prediction(agent.get("prediction")),
+                    "config": inputs.config(agent.get("config")),
+                    "agent_class": agent.get("agent_class"),
+                }
+            )
+        )
+    body = {"timestamp": inputs.plain(timestamp), "agents": entries}
+    return Call(
+        "POST", "/v1/frames", FrameResult, idempotent=False, json=body, op="frame", message=body
     )
 
 

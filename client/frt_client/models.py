@@ -123,6 +123,35 @@ class ObservationResult(Response):
     mode_mass: float | None = None
 
 
+class FrameError(Response):
+    #: The HTTP status the agent's own observation would have answered.
+    status: int
+    detail: str
+    #: Dotted, from the frame: ``agents.3.prediction.cov.2``.
+    field: str | None = None
+
+
+class FrameRejection(Response):
+    """An agent of a frame that was not applied: nothing of it changed."""
+
+    agent_id: str | None = None
+    #: The entry's place in the frame.
+    index: int
+    error: FrameError
+
+
+class FrameResult(Response):
+    """Answer to :meth:`FRTClient.frame`: one result per agent, in the frame's order."""
+
+    timestamp: float
+    applied: int
+    rejected: int
+    results: list[ObservationResult | FrameRejection]
+
+    def rejections(self) -> list[FrameRejection]:
+        return [r for r in self.results if isinstance(r, FrameRejection)]
+
+
 class Agent(Response):
     """Answer to :meth:`FRTClient.get_agent`: what the service holds for one human."""
 
@@ -179,6 +208,9 @@ class CollisionCheck(CollisionAnswer):
     conservative: bool
     #: Time after which the FRT says nothing.
     horizon_end: float | None = None
+    #: "exact" (from the exact set), "decision_exact" (from a set containing it and clear of it:
+    #: the exact set's verdict too) or "conservative" (that set is met; the exact one may be clear).
+    verdict: Literal["exact", "decision_exact", "conservative"] | None = None
 
 
 class MultiCollisionCheck(Response):

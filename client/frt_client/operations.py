@@ -18,6 +18,7 @@ from frt_client.models import (
     AgentContours,
     CollisionCheck,
     DeleteResult,
+    FrameResult,
     FRTResult,
     Mode,
     MultiCollisionCheck,
@@ -79,6 +80,14 @@ class Operations:
                 agent_class=agent_class,
             )
         )
+
+    def frame(self, *, timestamp: float, agents: Iterable[Any]) -> FrameResult:
+        """Report one frame of many humans in one request (``POST /v1/frames``); never sent
+        twice. ``agents``: per human a mapping with ``agent_id``, ``state``, ``prediction`` and
+        optionally ``observed_action``, ``config``, ``agent_class`` (as :meth:`observe`). A
+        rejected human is answered by index and field (:meth:`FrameResult.rejections`); nothing
+        of it changes and the others are applied."""
+        return self.send(calls.frame(timestamp=timestamp, agents=agents))
 
     def get_agent(self, agent_id: str, *, wait_frt_ms: float = 0.0) -> Agent:
         """The agent's β, belief, control bounds, last timestamp, FRT version and config; with
@@ -257,6 +266,10 @@ class AsyncOperations:
                 agent_class=agent_class,
             )
         )
+
+    async def frame(self, *, timestamp: float, agents: Iterable[Any]) -> FrameResult:
+        """Report one frame of many humans in one request (see :meth:`Operations.frame`)."""
+        return await self.send(calls.frame(timestamp=timestamp, agents=agents))
 
     async def get_agent(self, agent_id: str, *, wait_frt_ms: float = 0.0) -> Agent:
         """The agent's β, belief, control bounds, last timestamp, FRT version and config; with

@@ -11,7 +11,17 @@ from fastapi import Depends, FastAPI
 from service.api.auth import BearerAuthMiddleware, bearer_scheme
 from service.api.errors import install_error_handlers
 from service.api.middleware import BodySizeLimitMiddleware, RequestContextMiddleware
-from service.api.routes import agents, collision, contours, health, model, stateless, stream, viewer
+from service.api.routes import (
+    agents,
+    collision,
+    contours,
+    frames,
+    health,
+    model,
+    stateless,
+    stream,
+    viewer,
+)
 from service.api.routes.params import query_parameters_checked
 from service.runtime.logs import configure_logging
 from service.runtime.services import Services
@@ -59,7 +69,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     app.include_router(health.router)
     checked = [Depends(bearer_scheme), Depends(query_parameters_checked)]
-    for router in (agents, collision, contours, stateless, model):
+    for router in (agents, frames, collision, contours, stateless, model):
         app.include_router(router.router, dependencies=checked)
     app.include_router(stream.router)
     if settings.viewer:

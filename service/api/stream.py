@@ -4,6 +4,7 @@ Request: ``{"id": <any JSON>, "op": <op>, ...fields}``; the fields are those of 
 body, plus ``agent_id`` where the HTTP path has one:
 
 - ``observe``: ``agent_id`` + an observation (``POST /v1/agents/{agent_id}/observations``);
+- ``frame``: one frame of many agents (``POST /v1/frames``);
 - ``collision_check``: ``agent_id`` + a check; without ``agent_id``, the multi-agent check
   (``agent_ids`` or all);
 - ``frt``: ``agent_id`` + ``slices``, ``include``, ``tube``, ``collision_radius`` (the agent's
@@ -31,13 +32,14 @@ from typing import Any
 from pydantic import BaseModel, TypeAdapter, ValidationError
 
 from service.api import recent_checks
-from service.flows import agents, checks, contours, stateless
+from service.flows import agents, checks, contours, frames, stateless
 from service.runtime.services import Services
 from service.wire.errors import AgentNotFoundError, APIError, validation_payload
 from service.wire.schemas import (
     AgentId,
     CollisionCheckRequest,
     ContourQuery,
+    FrameRequest,
     FRTRequest,
     MultiCollisionCheckRequest,
     ObservationRequest,
@@ -69,6 +71,10 @@ async def _observe(services: Services, msg: dict[str, Any], arrival: float) -> B
     agent_id = _pop_agent_id(msg, required=True)
     assert agent_id is not None
     return await agents.observe(services, agent_id, ObservationRequest.model_validate(msg))
+
+
+async def _frame(services: Services, msg: dict[str, Any], arrival: float) -> BaseModel:
+    return await frames.apply_frame(services, FrameRequest.model_validate(msg))
 
 
 async def _collision_check(services: Services, msg: dict[str, Any], arrival: float) -> BaseModel:
@@ -139,6 +145,7 @@ async def _ping(services: Services, msg: dict[str, Any], arrival: float) -> dict
 
 OPS: dict[str, Handler] = {
     "observe": _observe,
+    "frame": _frame,
     "collision_check": _collision_check,
     "frt": _frt,
     "get_agent": _get_agent,

@@ -92,6 +92,8 @@ class Settings(BaseSettings):
     exact_timeout_s: float = Field(5.0, gt=0.0)
     #: Agents one multi-agent collision check may name (or find, when it asks for all of them).
     max_agents_per_check: int = Field(256, ge=1)
+    #: Agents one frame (``POST /v1/frames``) may carry.
+    max_agents_per_frame: int = Field(256, ge=1)
     #: Time slices one contour request may ask for.
     max_slices: int = Field(16, ge=1)
 

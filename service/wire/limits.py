@@ -17,6 +17,7 @@ class RequestLimits(Protocol):
     max_prediction_steps: int
     max_trajectory_points: int
     max_agents_per_check: int
+    max_agents_per_frame: int
     max_slices: int
 
 
@@ -54,6 +55,7 @@ def openapi_with_limits(spec: dict[str, Any], settings: RequestLimits) -> dict[s
         "cov": settings.max_prediction_steps,
         "trajectory": settings.max_trajectory_points,
         "agent_ids": settings.max_agents_per_check,
+        "agents": settings.max_agents_per_frame,
         "slices": settings.max_slices,
     }
 

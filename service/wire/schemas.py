@@ -10,7 +10,14 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_serializer, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    computed_field,
+    model_serializer,
+    model_validator,
+)
 
 from reach.contract import BOUND_COLUMNS
 
@@ -18,6 +25,8 @@ from reach.contract import BOUND_COLUMNS
 PREDICTION_STEPS_CAP = 4096
 TRAJECTORY_POINTS_CAP = 100_000
 AGENTS_PER_CHECK_CAP = 10_000
+#: Hard cap of agents in one frame (``FRT_MAX_AGENTS_PER_FRAME`` is the tighter limit).
+AGENTS_PER_FRAME_CAP = 10_000
 SLICES_CAP = 256
 #: Modes of a multi-modal prediction parsed at most (the service allows ``MAX_MODES``).
 MODES_CAP = 256
@@ -256,6 +265,17 @@ class TrajectoryPoint(Request):
 Trajectory = Annotated[list[TrajectoryPoint], Field(min_length=1, max_length=TRAJECTORY_POINTS_CAP)]
 
 
+Verdict = Literal["exact", "decision_exact", "conservative"]
+
+
+def answer_verdict(conservative: bool, collision: bool) -> Verdict:
+    """How good a per-agent answer is: a set containing the exact one that a trajectory clears
+    is cleared by the exact set too (API.md, "Frames": ``verdict``)."""
+    if not conservative:
+        return "exact"
+    return "conservative" if collision else "decision_exact"
+
+
 class CollisionAnswer(Response):
     collision: bool
     first_collision_index: int | None
@@ -321,6 +341,44 @@ class ObservationResponse(_DropsUnsetModes):
     action_scored: bool = Field(description="whether observed_action updated the belief")
     frt_ready: bool = Field(
         False, description="whether the exact FRT of this version is computed (see wait_frt_ms)"
+    )
+
+
+# -------------------------------------------------------------------------------------- frames
+
+
+class FrameRequest(Request):
+    """One frame of many agents (API.md, "Frames"): each entry is the observation body without
+    ``timestamp`` plus ``agent_id``, validated on its own, so one bad agent is rejected by index
+    and field while the others are applied."""
+
+    timestamp: Time
+    agents: list[dict[str, Any]] = Field(
+        max_length=AGENTS_PER_FRAME_CAP,
+        description="per agent: agent_id and the observation body's fields but timestamp",
+    )
+
+
+class FrameError(Response):
+    status: int = Field(description="the HTTP status the agent's own observation would answer")
+    detail: str
+    field: str | None = Field(description="dotted, from the frame: agents.3.prediction.cov.2")
+
+
+class FrameRejection(Response):
+    """An agent of the frame that was not applied: nothing of it changed."""
+
+    agent_id: str | None = Field(description="the entry's agent_id, if it has a valid one")
+    index: int = Field(description="the entry's place in the frame's agents")
+    error: FrameError
+
+
+class FrameResponse(Response):
+    timestamp: float
+    applied: int = Field(description="agents whose observation was applied")
+    rejected: int = Field(description="agents rejected (see their entries)")
+    results: list[ObservationResponse | FrameRejection] = Field(
+        description="one per agent, in the frame's order"
     )
 
 
@@ -392,6 +450,16 @@ class CollisionCheckResponse(CollisionAnswer):
         "than the points' own while those are not drawn in time"
     )
     horizon_end: float = Field(description="time after which the FRT says nothing")
+
+    @computed_field(  # type: ignore[prop-decorator]
+        description="exact: from the exact set; decision_exact: from a set containing the exact "
+        "one and clear of it, so the exact set's verdict is the same (its clearance a lower bound "
+        "of the exact one); conservative: from a set containing the exact one that the trajectory "
+        "meets (the exact set may be clear)"
+    )
+    @property
+    def verdict(self) -> Verdict:
+        return answer_verdict(self.conservative, self.collision)
 
 
 class MultiCollisionCheckRequest(CollisionCheckRequest):

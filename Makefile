@@ -58,7 +58,7 @@ test: lint
 # Reproduces the shipped model: train, export (contract graph + float32 twin), calibrate delta,
 # distil the (x, y) projection network, then measure the accuracy written into the card.
 train: $(STAMP)
-	$(BIN)/python -m models.train --config models/configs/full.json --out runs/frt_unicycle --no-export
+	$(BIN)/python -m models.train --config models/configs/full.json --out runs/frt_unicycle
 	cp runs/frt_unicycle/log.csv models/training_log.csv
 	cp runs/frt_unicycle/train_meta.json models/training_meta.json
 	$(BIN)/python -m models.export --run runs/frt_unicycle --out models
@@ -68,7 +68,7 @@ train: $(STAMP)
 	$(MAKE) evaluate-full
 
 train-smoke: $(STAMP)
-	$(BIN)/python -m models.train --config models/configs/smoke.json --out /tmp/frt-smoke
+	$(BIN)/python -m models.pipeline --config models/configs/smoke.json --out /tmp/frt-smoke
 
 evaluate: $(STAMP)
 	$(BIN)/python -m models.evaluate --model $(MODEL) --rollouts 65536

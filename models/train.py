@@ -2,7 +2,7 @@
 
 Seeded, checkpointed every ``checkpoint_every`` steps (``<out>/checkpoint.pt``, resumed
 automatically), logged to ``<out>/log.csv`` with a progress bar. At the end it writes
-``<out>/<name>.pt`` (weights only) and exports ``<out>/<name>.onnx`` (see models/export.py).
+``<out>/<name>.pt`` (weights only); ``models.pipeline`` trains and exports in one command.
 """
 
 from __future__ import annotations
@@ -201,7 +201,6 @@ def main() -> None:
     parser.add_argument("--config", type=Path, required=True)
     parser.add_argument("--out", type=Path, default=None, help="run folder (default runs/<name>)")
     parser.add_argument("--max-minutes", type=float, default=None)
-    parser.add_argument("--no-export", action="store_true")
     parser.add_argument("--threads", type=int, default=None, help="torch CPU threads")
     args = parser.parse_args()
     if args.threads:
@@ -209,10 +208,6 @@ def main() -> None:
     config = TrainConfig.load(args.config)
     out = args.out or Path("runs") / config.name
     train(config, out, args.max_minutes)
-    if not args.no_export:
-        from models.export import export_run
-
-        export_run(out, config)
 
 
 if __name__ == "__main__":

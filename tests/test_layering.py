@@ -149,3 +149,21 @@ def test_the_tier_scan_sees_an_upward_import(tmp_path: Path) -> None:
         "def f():\n    from service.flows.agents import observe\n    import service.api\n"
     )
     assert _service_imports(module) == {"flows", "api"}
+
+
+def test_training_and_export_do_not_import_each_other() -> None:
+    """``models.pipeline`` runs train -> export; ``models.train`` knows nothing of the export."""
+
+    def models_imported(path: Path) -> set[str]:
+        found: set[str] = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if (
+                isinstance(node, ast.ImportFrom)
+                and node.module
+                and node.module.startswith("models.")
+            ):
+                found.add(node.module)
+        return found
+
+    assert "models.export" not in models_imported(ROOT / "models" / "train.py")
+    assert {"models.train", "models.export"} <= models_imported(ROOT / "models" / "pipeline.py")

@@ -52,7 +52,7 @@ def hypotheses(beta_low: float, n: int = 2) -> np.ndarray:
 
 @lru_cache(maxsize=256)
 def _grid(beta_low: float, n: int) -> np.ndarray:
-    """:func:`hypotheses` once per (beta_low, n): geomspace is ~40 us, and every observation asks."""
+    """:func:`hypotheses` once per (beta_low, n): every observation asks, and geomspace is not free."""
     betas = np.geomspace(beta_low, 1.0, n)
     betas[0], betas[-1] = beta_low, 1.0
     betas.flags.writeable = False

@@ -1,8 +1,8 @@
 """What answering a collision check costs here, per agent, by the set it is answered from.
 
 Once a check's sets are known, answering is CPU work on the event loop: per agent, a signed distance
-to its exact tube (GEOS, ~0.04 ms quiet) or to its conservative boxes (one numpy pass for every
-such agent, ~0.01 ms each), and its share of building the response. Under load each takes several
+to its exact tube (GEOS) or to its conservative boxes (one numpy pass for every such agent), and
+its share of building the response. Under load each takes several
 times its quiet cost, so the deadline logic (``service.flows.checks``) plans with an estimate that is
 rarely exceeded rather than the average: per kind, a moving average of the cost per agent plus
 ``SPREAD`` moving mean absolute deviations of it.

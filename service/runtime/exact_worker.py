@@ -6,8 +6,8 @@ worker process loads the model once (:func:`init_worker`, from the same model pa
 and runs :class:`ExactTask`\\ s; the result, a :class:`~reach.engine.FieldTubeSet` with its
 eagerly built whole tube and the small arrays its slices are drawn from later, comes back by pickle
 between our own processes (trusted IPC, :class:`~service.runtime.pipe_pool.PipePool`; what a set sends
-is its ``__getstate__``). Conservative sets (boxes only, well under the
-~1 ms a task's round trip costs the server) are built by the server itself.
+is its ``__getstate__``). Conservative sets (boxes only, cheaper than a task's round trip to a
+worker) are built by the server itself.
 
 Exact-set workers run below the server (SCHED_IDLE by default, :func:`lower_priority`), so that on
 a busy machine the event loop answers first and exact sets use what is left. A worker exits when its server does (even

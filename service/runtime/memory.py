@@ -55,7 +55,7 @@ def keep_freed_memory() -> bool:
 
 def freeze_start_up_objects() -> None:
     """Move every object alive now (modules, schemas, the model, ...) out of the garbage
-    collector's reach: a full collection traversed them all, a 45 ms pause measured in the middle of
-    a contour request; after this only objects made later are traversed."""
+    collector's reach: a full collection would traverse them all, a pause in the middle of a
+    request; after this only objects made later are traversed."""
     gc.collect()
     gc.freeze()

@@ -1,9 +1,8 @@
 """A process pool that costs its parent little: one pipe per worker, one reader thread.
 
 ``concurrent.futures.ProcessPoolExecutor`` moves every task through a queue-management thread and a
-feeder thread in the parent, each of which must take the GIL from the event loop: measured here,
-~1.1 ms of the server's CPU and ~2 ms of latency per task, about what a conservative set costs to
-compute. In :class:`PipePool` the submitting thread pickles a task and writes it straight to an idle
+feeder thread in the parent, each of which must take the GIL from the event loop: per task, about
+what a conservative set costs to compute (docs/performance.md). In :class:`PipePool` the submitting thread pickles a task and writes it straight to an idle
 worker's pipe, and a single reader thread waits on all pipes at once and completes the futures.
 
 Workers are spawned, run an initializer once, report ready, then serve tasks one at a time until they

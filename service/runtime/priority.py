@@ -2,7 +2,7 @@
 
 A check has a deadline (API.md: it answers within ``deadline_ms`` of its arrival); an observation has
 none. Both run on the one event loop, and an observation's numerical work (Bayes update, bounds fit,
-conservative set: 2-4 ms) that starts while a check is in flight holds the loop when the check's
+conservative set: milliseconds) that starts while a check is in flight holds the loop when the check's
 wait for an exact set ends: under the sustained load (100 observations per second) that put checks
 past their deadline at the server. Here a check marks itself in flight (:meth:`ChecksFirst.check`),
 and an observation waits before its numerical work until no check is

@@ -1,7 +1,7 @@
 """Background computation of exact FRTs on a few workers, with an LRU cache of the results.
 
 Workers are threads or, in the server, processes (:mod:`service.runtime.exact_worker`): an exact set is
-~17 ms of numpy and onnxruntime that, on a thread, would hold the event loop's GIL.
+milliseconds of numpy and onnxruntime that, on a thread, would hold the event loop's GIL.
 
 An observation submits the exact set of the agent's new FRT version and returns at once; a collision
 check waits for that set only until its deadline (:meth:`FRTScheduler.wait`) and otherwise answers

@@ -52,7 +52,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.services = services
     install_error_handlers(app)
     # Added last = outermost: context (timing, id, logs) -> auth -> body limit -> routes.
-    app.add_middleware(BodySizeLimitMiddleware, max_bytes=settings.max_body_bytes)
+    app.add_middleware(
+        BodySizeLimitMiddleware,
+        max_bytes=settings.max_body_bytes,
+        max_check_bytes=settings.max_check_body_bytes,
+    )
     app.add_middleware(BearerAuthMiddleware, token=settings.auth_token)
     app.add_middleware(
         RequestContextMiddleware, metrics=services.metrics, log_requests=settings.log_requests

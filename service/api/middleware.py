@@ -96,20 +96,32 @@ class RequestContextMiddleware:
                 )
 
 
-class BodySizeLimitMiddleware:
-    """413 for bodies over ``max_bytes``: by Content-Length up front, and by counting what streams in.
+#: Paths whose bodies have the collision checks' limit (a batch of trajectories is large).
+CHECK_PATH_SUFFIX = "/collision-check"
 
-    A chunked or lying client is cut off as soon as the count passes the limit.
+
+class BodySizeLimitMiddleware:
+    """413 for bodies over the limit: by Content-Length up front, and by counting what streams in.
+
+    The limit is ``max_bytes``, or ``max_check_bytes`` on collision checks. A chunked or lying
+    client is cut off as soon as the count passes it.
     """
 
-    def __init__(self, app: ASGIApp, max_bytes: int) -> None:
+    def __init__(self, app: ASGIApp, max_bytes: int, max_check_bytes: int | None = None) -> None:
         self.app = app
-        self.max_bytes = max_bytes
+        self.default_bytes = max_bytes
+        self.check_bytes = max_bytes if max_check_bytes is None else max_check_bytes
+
+    def limit_for(self, path: str) -> int:
+        return self.check_bytes if path.endswith(CHECK_PATH_SUFFIX) else self.default_bytes
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
+        await self._limited(scope, receive, send, self.limit_for(scope.get("path", "")))
+
+    async def _limited(self, scope: Scope, receive: Receive, send: Send, max_bytes: int) -> None:
         declared = _header(scope, b"content-length")
         if declared is not None:
             try:
@@ -117,9 +129,9 @@ class BodySizeLimitMiddleware:
             except ValueError:
                 await send_json(send, 400, {"detail": "invalid Content-Length header"})
                 return
-            if length > self.max_bytes:
+            if length > max_bytes:
                 await send_json(
-                    send, 413, {"detail": f"request body larger than {self.max_bytes} bytes"}
+                    send, 413, {"detail": f"request body larger than {max_bytes} bytes"}
                 )
                 return
 
@@ -131,8 +143,8 @@ class BodySizeLimitMiddleware:
             message = await receive()
             if message["type"] == "http.request":
                 received += len(message.get("body", b""))
-                if received > self.max_bytes:
-                    raise BodyTooLargeError(self.max_bytes)
+                if received > max_bytes:
+                    raise BodyTooLargeError(max_bytes)
             return message
 
         async def tracking_send(message: Message) -> None:

@@ -48,6 +48,8 @@ class Settings(BaseSettings):
     max_agents: int = Field(10_000, ge=1)
     agent_ttl_s: float = Field(300.0, gt=0.0)
     max_body_bytes: int = Field(1_000_000, ge=1024)
+    #: The body limit of collision checks, which may carry a batch of trajectories.
+    max_check_body_bytes: int = Field(8_000_000, ge=1024)
     max_prediction_steps: int = Field(64, ge=1)
     max_trajectory_points: int = Field(1_000, ge=1)
     auth_token: str | None = None
@@ -92,6 +94,13 @@ class Settings(BaseSettings):
     exact_timeout_s: float = Field(5.0, gt=0.0)
     #: Agents one multi-agent collision check may name (or find, when it asks for all of them).
     max_agents_per_check: int = Field(256, ge=1)
+    #: Trajectories one batch check may carry.
+    max_trajectories: int = Field(1024, ge=1)
+    #: Points one check measures against each agent (every trajectory's, times the footprint's
+    #: discs) ...
+    max_check_points: int = Field(131_072, ge=1)
+    #: ... and against all its agents together (points x agents).
+    max_check_work: int = Field(2_000_000, ge=1)
     #: Agents one frame (``POST /v1/frames``) may carry.
     max_agents_per_frame: int = Field(256, ge=1)
     #: Time slices one contour request may ask for.

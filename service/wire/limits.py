@@ -19,6 +19,9 @@ class RequestLimits(Protocol):
     max_agents_per_check: int
     max_agents_per_frame: int
     max_slices: int
+    max_trajectories: int
+    max_check_points: int
+    max_check_work: int
 
 
 def check_length(field: str, value: Sized | None, limit: int) -> None:
@@ -56,6 +59,7 @@ def openapi_with_limits(spec: dict[str, Any], settings: RequestLimits) -> dict[s
         "trajectory": settings.max_trajectory_points,
         "agent_ids": settings.max_agents_per_check,
         "agents": settings.max_agents_per_frame,
+        "trajectories": settings.max_trajectories,
         "slices": settings.max_slices,
     }
 

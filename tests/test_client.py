@@ -261,7 +261,8 @@ def test_404_and_409(client: FRTClient) -> None:
 
 
 def test_413_for_a_body_over_the_limit(client: FRTClient) -> None:
-    points = np.column_stack([np.linspace(0, 3, 50_000), np.zeros(50_000), np.zeros(50_000)])
+    n = 250_000  # over the collision checks' body limit (FRT_MAX_CHECK_BODY_BYTES)
+    points = np.column_stack([np.linspace(0, 3, n), np.zeros(n), np.zeros(n)])
     with pytest.raises(PayloadTooLargeError) as caught:
         client.collision_check(agent_id(), points)
     assert caught.value.status == 413

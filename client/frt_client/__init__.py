@@ -28,6 +28,7 @@ from frt_client.errors import (
 from frt_client.inputs import (
     BOUND_COLUMNS,
     AgentConfig,
+    Footprint,
     HumanState,
     MixturePrediction,
     ObservedAction,
@@ -59,6 +60,7 @@ from frt_client.models import (
     MultiCollisionCheck,
     ObservationResult,
     Readiness,
+    TrajectoryAnswer,
 )
 from frt_client.retry import NO_RETRY, RetryPolicy
 from frt_client.stream import Stream
@@ -90,6 +92,7 @@ __all__ = [
     "FRTClient",
     "FRTError",
     "FRTResult",
+    "Footprint",
     "FrameRejection",
     "FrameResult",
     "Health",
@@ -108,6 +111,7 @@ __all__ = [
     "RetryPolicy",
     "ServerError",
     "Stream",
+    "TrajectoryAnswer",
     "TrajectoryPoint",
     "UnavailableError",
     "ValidationError",

@@ -139,28 +139,41 @@ def delete_agent(agent_id: str) -> Call[DeleteResult]:
     )
 
 
-def _check_body(
-    trajectory: Any, mode: str, collision_radius: float | None, deadline_ms: float | None
-) -> dict[str, Any]:
+@dataclass(frozen=True)
+class CheckOptions:
+    """What a collision check asks besides its points (see ``FRTClient.collision_check``)."""
+
+    mode: str = "tube"
+    collision_radius: float | None = None
+    deadline_ms: float | None = None
+    footprint: Any = None
+    include_clearance: bool = False
+
+
+def _check_body(trajectory: Any, trajectories: Any, options: CheckOptions) -> dict[str, Any]:
+    if (trajectory is None) == (trajectories is None):
+        raise ValidationError("give exactly one of trajectory and trajectories", field="trajectory")
     return inputs.without_none(
         {
-            "trajectory": inputs.trajectory(trajectory),
-            "mode": mode,
-            "collision_radius": inputs.plain(collision_radius),
-            "deadline_ms": inputs.plain(deadline_ms),
+            "trajectory": None if trajectory is None else inputs.trajectory(trajectory),
+            "trajectories": None if trajectories is None else inputs.trajectories(trajectories),
+            "mode": options.mode,
+            "collision_radius": inputs.plain(options.collision_radius),
+            "deadline_ms": inputs.plain(options.deadline_ms),
+            "footprint": inputs.footprint(options.footprint),
+            "include_clearance": True if options.include_clearance else None,
         }
     )
 
 
 def collision_check(
     agent_id: str,
-    trajectory: Any,
+    trajectory: Any = None,
     *,
-    mode: str = "tube",
-    collision_radius: float | None = None,
-    deadline_ms: float | None = None,
+    trajectories: Any = None,
+    options: CheckOptions = CheckOptions(),
 ) -> Call[CollisionCheck]:
-    body = _check_body(trajectory, mode, collision_radius, deadline_ms)
+    body = _check_body(trajectory, trajectories, options)
     return Call(
         "POST",
         _agent_path(agent_id, "/collision-check"),
@@ -173,14 +186,13 @@ def collision_check(
 
 
 def collision_check_many(
-    trajectory: Any,
+    trajectory: Any = None,
     agent_ids: Iterable[str] | None = None,
     *,
-    mode: str = "tube",
-    collision_radius: float | None = None,
-    deadline_ms: float | None = None,
+    trajectories: Any = None,
+    options: CheckOptions = CheckOptions(),
 ) -> Call[MultiCollisionCheck]:
-    body = _check_body(trajectory, mode, collision_radius, deadline_ms)
+    body = _check_body(trajectory, trajectories, options)
     # An explicit null means "every known agent"; an empty list means none.
     body["agent_ids"] = None if agent_ids is None else [str(a) for a in agent_ids]
     return Call(

@@ -6,7 +6,9 @@ converted with it, so numpy stays optional):
 
 - a state ``(x, y, heading, speed)``; an action ``(steering_rate, acceleration)``;
 - a prediction ``{"dt": 0.1, "mean": (S, 2) array, "cov": (S, 2, 2) array}``;
-- a trajectory ``(N, 3)`` of rows ``(t, x, y)``, or a list of ``{"t", "x", "y"}`` points;
+- a trajectory ``(N, 3)`` of rows ``(t, x, y)`` (``(N, 4)`` with the ego's heading), or a list of
+  ``{"t", "x", "y"[, "heading"]}`` points; a batch of them as a sequence of trajectories;
+- a footprint ``(length, width[, rear_axle_to_center])``;
 - control bounds: eight numbers in the model contract's order (see :data:`BOUND_COLUMNS`).
 
 The SDK only reshapes and type-checks; ranges, shapes and positive definiteness are the service's to
@@ -107,11 +109,22 @@ class AgentConfig(RequestPart):
 
 
 class TrajectoryPoint(RequestPart):
-    """A robot position at time ``t`` (seconds, on the observations' clock)."""
+    """A robot position at time ``t`` (seconds, on the observations' clock), and its heading
+    (radians; needed with a footprint)."""
 
     t: float
     x: float
     y: float
+    heading: float | None = None
+
+
+class Footprint(RequestPart):
+    """The ego's box (metres), along each point's heading; its centre ``rear_axle_to_center``
+    ahead of the point."""
+
+    length: float
+    width: float
+    rear_axle_to_center: float = 0.0
 
 
 def _model(cls: type[RequestPart], value: Any, name: str, fields: Sequence[str]) -> dict[str, Any]:
@@ -192,19 +205,62 @@ def bounds(value: Any) -> dict[str, Any]:
     return data
 
 
-def trajectory(value: Any) -> list[dict[str, Any]]:
-    """Points as ``(N, 3)`` rows ``(t, x, y)``, or :class:`TrajectoryPoint` s, or mappings."""
+_POINT_FIELDS = ("t", "x", "y")
+_HEADED_POINT_FIELDS = ("t", "x", "y", "heading")
+
+
+def trajectory(value: Any, name: str = "trajectory") -> list[dict[str, Any]]:
+    """Points as ``(N, 3)`` rows ``(t, x, y)`` or ``(N, 4)`` rows ``(t, x, y, heading)``, or
+    :class:`TrajectoryPoint` s, or mappings."""
     if isinstance(value, BaseModel):
         value = [value]
-    data = value.tolist() if hasattr(value, "tolist") else value
+    data = plain(value)
     if isinstance(data, Mapping) or not isinstance(data, Sequence) or isinstance(data, str):
-        raise ValidationError(
-            "trajectory: expected a sequence of (t, x, y) points", field="trajectory"
-        )
+        raise ValidationError(f"{name}: expected a sequence of (t, x, y) points", field=name)
     return [
-        _model(TrajectoryPoint, point, f"trajectory.{i}", ("t", "x", "y"))
+        _model(
+            TrajectoryPoint,
+            point,
+            f"{name}.{i}",
+            _HEADED_POINT_FIELDS if isinstance(point, list) and len(point) == 4 else _POINT_FIELDS,
+        )
         for i, point in enumerate(data)
     ]
+
+
+def trajectory_columns(value: Any, name: str) -> dict[str, list[float]]:
+    """One trajectory (any form :func:`trajectory` takes) as the columns ``{t, x, y[, heading]}``
+    the service parses fastest."""
+    points = trajectory(value, name)
+    columns = {key: [p[key] for p in points] for key in _POINT_FIELDS}
+    headings = [p.get("heading") for p in points]
+    if any(h is not None for h in headings):
+        if any(h is None for h in headings):
+            raise ValidationError(f"{name}: a heading at every point or none", field=name)
+        columns["heading"] = headings
+    return columns
+
+
+def trajectories(value: Any) -> list[dict[str, list[float]]]:
+    """A batch: a sequence of trajectories (an ``(M, N, 3 or 4)`` array, or a list of any form
+    :func:`trajectory` takes), as columns."""
+    data = plain(value)
+    if isinstance(data, Mapping) or not isinstance(data, Sequence) or isinstance(data, str):
+        raise ValidationError(
+            "trajectories: expected a sequence of trajectories", field="trajectories"
+        )
+    return [trajectory_columns(t, f"trajectories.{k}") for k, t in enumerate(data)]
+
+
+def footprint(value: Any) -> dict[str, Any] | None:
+    """A :class:`Footprint`, a mapping, or ``(length, width[, rear_axle_to_center])``."""
+    if value is None:
+        return None
+    data = plain(value) if not isinstance(value, BaseModel) else value
+    fields = ("length", "width", "rear_axle_to_center")
+    if isinstance(data, list):
+        fields = fields[: len(data)] if len(data) in (2, 3) else fields
+    return _model(Footprint, data, "footprint", fields)
 
 
 def without_none(body: Mapping[str, Any]) -> dict[str, Any]:

@@ -196,6 +196,18 @@ class CollisionAnswer(Response):
     clearance: list[float] = Field(default_factory=list)
 
 
+class TrajectoryAnswer(Response):
+    """One trajectory of a batch check (``trajectories=``) against one agent."""
+
+    collision: bool
+    first_collision_index: int | None = None
+    first_collision_time: float | None = None
+    #: The least of the trajectory's clearances (distance to K minus R_col; negative inside C).
+    min_clearance: float
+    #: Per point, with ``include_clearance=True``.
+    clearance: list[float] | None = None
+
+
 class CollisionCheck(CollisionAnswer):
     """Answer to :meth:`FRTClient.collision_check` for one agent."""
 
@@ -211,6 +223,8 @@ class CollisionCheck(CollisionAnswer):
     #: "exact" (from the exact set), "decision_exact" (from a set containing it and clear of it:
     #: the exact set's verdict too) or "conservative" (that set is met; the exact one may be clear).
     verdict: Literal["exact", "decision_exact", "conservative"] | None = None
+    #: A batch check's answers, one per trajectory in order (then ``collision`` is any of them).
+    trajectories: list[TrajectoryAnswer] | None = None
 
 
 class MultiCollisionCheck(Response):

@@ -104,47 +104,63 @@ class Operations:
     def collision_check(
         self,
         agent_id: str,
-        trajectory: Any,
+        trajectory: Any = None,
         *,
+        trajectories: Any = None,
         mode: Mode = "tube",
         collision_radius: float | None = None,
         deadline_ms: float | None = None,
+        footprint: Any = None,
+        include_clearance: bool = False,
     ) -> CollisionCheck:
         """Does the robot ``trajectory`` enter the agent's unsafe set C = K ⊕ R_col?
 
         Args:
-            trajectory: ``(N, 3)`` rows ``(t, x, y)`` (t on the observations' clock), or points.
+            trajectory: ``(N, 3)`` rows ``(t, x, y)`` (t on the observations' clock), ``(N, 4)``
+                rows ``(t, x, y, heading)``, or points.
+            trajectories: instead of ``trajectory``, a batch of candidate trajectories (an
+                ``(M, N, 3 or 4)`` array or a list of trajectories), each answered on its own in
+                the answer's ``trajectories``.
             mode: ``"tube"`` (every point against the whole horizon) or ``"time_indexed"``.
             collision_radius: R_col in metres; default the agent's.
             deadline_ms: the service answers within it, conservatively if need be.
+            footprint: the ego's box ``(length, width[, rear_axle_to_center])`` or a mapping,
+                checked along each point's heading instead of the point (headings required).
+            include_clearance: with ``trajectories``, each one's clearance per point too.
         """
         return self.send(
             calls.collision_check(
                 agent_id,
                 trajectory,
-                mode=mode,
-                collision_radius=collision_radius,
-                deadline_ms=deadline_ms,
+                trajectories=trajectories,
+                options=calls.CheckOptions(
+                    mode, collision_radius, deadline_ms, footprint, include_clearance
+                ),
             )
         )
 
     def collision_check_many(
         self,
-        trajectory: Any,
+        trajectory: Any = None,
         agent_ids: Iterable[str] | None = None,
         *,
+        trajectories: Any = None,
         mode: Mode = "tube",
         collision_radius: float | None = None,
         deadline_ms: float | None = None,
+        footprint: Any = None,
+        include_clearance: bool = False,
     ) -> MultiCollisionCheck:
-        """The same check against several agents in one call; ``agent_ids=None`` checks all."""
+        """The same check (see :meth:`collision_check`) against several agents in one call;
+        ``agent_ids=None`` checks all."""
         return self.send(
             calls.collision_check_many(
                 trajectory,
                 agent_ids,
-                mode=mode,
-                collision_radius=collision_radius,
-                deadline_ms=deadline_ms,
+                trajectories=trajectories,
+                options=calls.CheckOptions(
+                    mode, collision_radius, deadline_ms, footprint, include_clearance
+                ),
             )
         )
 
@@ -286,47 +302,63 @@ class AsyncOperations:
     async def collision_check(
         self,
         agent_id: str,
-        trajectory: Any,
+        trajectory: Any = None,
         *,
+        trajectories: Any = None,
         mode: Mode = "tube",
         collision_radius: float | None = None,
         deadline_ms: float | None = None,
+        footprint: Any = None,
+        include_clearance: bool = False,
     ) -> CollisionCheck:
         """Does the robot ``trajectory`` enter the agent's unsafe set C = K ⊕ R_col?
 
         Args:
-            trajectory: ``(N, 3)`` rows ``(t, x, y)`` (t on the observations' clock), or points.
+            trajectory: ``(N, 3)`` rows ``(t, x, y)`` (t on the observations' clock), ``(N, 4)``
+                rows ``(t, x, y, heading)``, or points.
+            trajectories: instead of ``trajectory``, a batch of candidate trajectories (an
+                ``(M, N, 3 or 4)`` array or a list of trajectories), each answered on its own in
+                the answer's ``trajectories``.
             mode: ``"tube"`` (every point against the whole horizon) or ``"time_indexed"``.
             collision_radius: R_col in metres; default the agent's.
             deadline_ms: the service answers within it, conservatively if need be.
+            footprint: the ego's box ``(length, width[, rear_axle_to_center])`` or a mapping,
+                checked along each point's heading instead of the point (headings required).
+            include_clearance: with ``trajectories``, each one's clearance per point too.
         """
         return await self.send(
             calls.collision_check(
                 agent_id,
                 trajectory,
-                mode=mode,
-                collision_radius=collision_radius,
-                deadline_ms=deadline_ms,
+                trajectories=trajectories,
+                options=calls.CheckOptions(
+                    mode, collision_radius, deadline_ms, footprint, include_clearance
+                ),
             )
         )
 
     async def collision_check_many(
         self,
-        trajectory: Any,
+        trajectory: Any = None,
         agent_ids: Iterable[str] | None = None,
         *,
+        trajectories: Any = None,
         mode: Mode = "tube",
         collision_radius: float | None = None,
         deadline_ms: float | None = None,
+        footprint: Any = None,
+        include_clearance: bool = False,
     ) -> MultiCollisionCheck:
-        """The same check against several agents in one call; ``agent_ids=None`` checks all."""
+        """The same check (see :meth:`collision_check`) against several agents in one call;
+        ``agent_ids=None`` checks all."""
         return await self.send(
             calls.collision_check_many(
                 trajectory,
                 agent_ids,
-                mode=mode,
-                collision_radius=collision_radius,
-                deadline_ms=deadline_ms,
+                trajectories=trajectories,
+                options=calls.CheckOptions(
+                    mode, collision_radius, deadline_ms, footprint, include_clearance
+                ),
             )
         )
 

@@ -22,6 +22,7 @@ from service.api.routes import (
     stream,
     viewer,
 )
+from service.api.routes.json_body import add_body_schemas
 from service.api.routes.params import query_parameters_checked
 from service.runtime.logs import configure_logging
 from service.runtime.services import Services
@@ -66,7 +67,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     def openapi() -> dict[str, Any]:
         if app.openapi_schema is None:
-            app.openapi_schema = openapi_with_limits(generate_openapi(), settings)
+            spec = add_body_schemas(generate_openapi())
+            app.openapi_schema = openapi_with_limits(spec, settings)
         return app.openapi_schema
 
     app.openapi = openapi  # type: ignore[method-assign]

@@ -12,7 +12,11 @@ from collections import deque
 from collections.abc import Sequence
 from typing import Any
 
-from service.wire.schemas import CollisionCheckRequest, CollisionCheckResponse
+from service.wire.schemas import (
+    CollisionCheckRequest,
+    CollisionCheckResponse,
+    TrajectoryColumns,
+)
 
 #: Checks kept, and how long one counts as the planner's current trajectory.
 KEEP = 64
@@ -41,13 +45,13 @@ class RecentChecks:
             age = now - at
             if age > self.max_age_s:
                 break
-            points = request.trajectory
+            points = _drawn_trajectory(request)
             step = max(1, -(-len(points) // MAX_POINTS))
             out.append(
                 {
                     "age_s": round(age, 3),
                     "mode": request.mode,
-                    "trajectory": [[p.t, p.x, p.y] for p in points[::step]],
+                    "trajectory": points[::step],
                     "collision": any(a.collision for a in answers),
                     "conservative": any(a.conservative for a in answers),
                     "agents": {
@@ -61,6 +65,17 @@ class RecentChecks:
                 }
             )
         return out
+
+
+def _drawn_trajectory(request: CollisionCheckRequest) -> list[list[float]]:
+    """The check's trajectory as ``[t, x, y]`` rows; of a batch, its first."""
+    if request.trajectory is not None:
+        return [[p.t, p.x, p.y] for p in request.trajectory]
+    assert request.trajectories is not None
+    first = request.trajectories[0]
+    if isinstance(first, TrajectoryColumns):
+        return [list(row) for row in zip(first.t, first.x, first.y, strict=True)]
+    return [[p.t, p.x, p.y] for p in first]
 
 
 _BY_SERVICES: dict[int, RecentChecks] = {}

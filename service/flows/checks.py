@@ -24,6 +24,7 @@ import numpy as np
 from reach.batch import box_clearances, tube_clearances
 from reach.sets import BoxTubeSet, FRTSet
 from service.flows.agent_config import AgentConfig
+from service.flows.check_points import CheckPoints, check_points, check_work, trajectory_answers
 from service.flows.confidence import Belief
 from service.runtime.jobs import FRTJob
 from service.runtime.services import Services
@@ -31,7 +32,7 @@ from service.runtime.settings import Settings
 from service.runtime.stores import AgentState
 from service.runtime.tube_builder import within_built_tubes
 from service.wire.errors import AgentNotFoundError, FieldError
-from service.wire.limits import check_agents, check_trajectory
+from service.wire.limits import check_agents
 from service.wire.schemas import (
     CollisionAnswer,
     CollisionCheckRequest,
@@ -138,11 +139,12 @@ async def answer_states(
     services: Services,
     states: Sequence[AgentState],
     request: CollisionCheckRequest,
+    points: CheckPoints,
     arrival: float,
 ) -> list[CollisionCheckResponse]:
-    """Answer one check of ``states`` in phases: wait for the exact sets that may make it, measure
-    the conservative sets of the rest, measure the exact sets (drawing the tubes a time-indexed
-    check needs while its budget allows), respond."""
+    """Answer one check of ``states`` at ``points`` in phases: wait for the exact sets that may
+    make it, measure the conservative sets of the rest, measure the exact sets (drawing the tubes a
+    time-indexed check needs while its budget allows), respond."""
     services.require_engine()
     timeline = _Timeline(arrival, time.perf_counter())
     deadline_ms = request.deadline_ms or services.settings.deadline_ms
@@ -152,8 +154,7 @@ async def answer_states(
     not_ready = sum(frt is None for frt in exact)
     found = list(exact)
     no_time = _answer_in_time(services, exact, arrival, deadline_ms)
-    xy = np.array([[p.x, p.y] for p in request.trajectory], dtype=np.float64)
-    times = np.array([p.t for p in request.trajectory], dtype=np.float64)
+    xy, times = points.probe_xy, points.probe_times
     t_rel = [times - s.timestamp if request.mode == "time_indexed" else None for s in states]
     # Answered on the event loop: cheaper per agent than the thread hop and the GIL hand-offs
     # with the loop that answering in a worker thread cost.
@@ -171,7 +172,7 @@ async def answer_states(
     # Tubes drawn for this check are budgeted on their own (TubeBuilder.cost).
     drawing = services.tubes.spent_s - drawn_before
     costs.exact.record(timeline.sets_done - timeline.boxes_done - drawing, len(pending))
-    results = _respond_all(services, states, exact, request, times, distances, coarse)
+    results = _respond_all(services, states, exact, request, points, distances, coarse)
     reasons = services.metrics.conservative_reasons
     for reason, count in (("not_ready", not_ready), ("no_time", no_time), ("tubes", len(coarse))):
         if count:
@@ -371,20 +372,11 @@ def _fit_tubes_to_deadline(
     return coarse
 
 
-def _respond_all(
-    services: Services,
-    states: Sequence[AgentState],
-    exact: Sequence[FRTSet | None],
-    request: CollisionCheckRequest,
-    times: np.ndarray,
-    distances: dict[int, np.ndarray],
-    coarse: set[int],
-) -> list[CollisionCheckResponse]:
-    """Every agent's answer from its distances to K (``distances[i]``, before R_col), the clearance
-    arithmetic done for all agents at once; ``coarse``: agents whose exact set was checked with
-    later tubes than the points' own (conservative)."""
-    settings = services.settings
-    radii = np.array(
+def _collision_radii(
+    settings: Settings, states: Sequence[AgentState], request: CollisionCheckRequest
+) -> np.ndarray:
+    """R_col per agent: the request's, else each agent's own."""
+    return np.array(
         [
             request.collision_radius
             if request.collision_radius is not None
@@ -393,33 +385,63 @@ def _respond_all(
         ],
         dtype=np.float64,
     )
-    if not states:
-        return []
-    clearance, first = clearance_rows(
-        np.stack([np.asarray(distances[i], dtype=np.float64) for i in range(len(states))]), radii
-    )
-    rows = clearance.tolist()
-    horizon = services.horizon_s()
-    answered = services.metrics.collision_checks
+
+
+def _count_sources(services: Services, exact: Sequence[FRTSet | None], coarse: set[int]) -> None:
+    """Count the answers by the set they came from: once per source, not once per agent."""
     from_conservative = sum(frt is None or i in coarse for i, frt in enumerate(exact))
+    answered = services.metrics.collision_checks
     for source, count in (
-        ("exact", len(states) - from_conservative),
+        ("exact", len(exact) - from_conservative),
         ("conservative", from_conservative),
     ):
         if count:
-            answered.labels(source).inc(count)  # once per source, not once per agent
+            answered.labels(source).inc(count)
+
+
+def _respond_all(
+    services: Services,
+    states: Sequence[AgentState],
+    exact: Sequence[FRTSet | None],
+    request: CollisionCheckRequest,
+    points: CheckPoints,
+    distances: dict[int, np.ndarray],
+    coarse: set[int],
+) -> list[CollisionCheckResponse]:
+    """Every agent's answer from its probes' distances to K (``distances[i]``, before R_col), the
+    clearance arithmetic done for all agents at once; ``coarse``: agents whose exact set was
+    checked with later tubes than the points' own (conservative)."""
+    if not states:
+        return []
+    radii = _collision_radii(services.settings, states, request)
+    probed = np.stack([np.asarray(distances[i], dtype=np.float64) for i in range(len(states))])
+    clearance, first = clearance_rows(points.point_distances(probed), radii)
+    if points.batch:
+        batches: list[list[Any]] | None = trajectory_answers(
+            clearance, points, request.include_clearance
+        )
+        rows: list[list[float]] = [[] for _ in states]
+        first[:] = -1
+    else:
+        batches, rows = None, clearance.tolist()
+    times = points.times
+    horizon = services.horizon_s()
+    _count_sources(services, exact, coarse)
     results = []
     for i, state in enumerate(states):
         conservative = exact[i] is None or i in coarse
         index = int(first[i]) if first[i] >= 0 else None
+        batch = None if batches is None else batches[i]
         belief = state.belief
         # Built from values of the right types: no second validation of every clearance.
         results.append(
             CollisionCheckResponse.model_construct(
-                collision=index is not None,
+                collision=index is not None
+                or (batch is not None and any(b["collision"] for b in batch)),
                 first_collision_index=index,
                 first_collision_time=None if index is None else float(times[index]),
                 clearance=rows[i],
+                trajectories=batch,
                 agent_id=state.agent_id,
                 mode=request.mode,
                 collision_radius=float(radii[i]),
@@ -436,12 +458,12 @@ async def check_agent(
     services: Services, agent_id: str, request: CollisionCheckRequest, arrival: float
 ) -> CollisionCheckResponse:
     with services.priority.check():
-        check_trajectory("trajectory", request.trajectory, services.settings)
+        points = check_points(request, services.settings)
         services.require_engine()
         state = await services.store.get(agent_id)
         if state is None:
             raise AgentNotFoundError(agent_id)
-        return (await answer_states(services, [state], request, arrival))[0]
+        return (await answer_states(services, [state], request, points, arrival))[0]
 
 
 async def check_agents_at_once(
@@ -455,7 +477,7 @@ async def _check_agents_at_once(
     services: Services, request: MultiCollisionCheckRequest, arrival: float
 ) -> MultiCollisionCheckResponse:
     settings = services.settings
-    check_trajectory("trajectory", request.trajectory, settings)
+    points = check_points(request, settings)
     services.require_engine()
     if request.agent_ids is None:
         ids = await services.store.ids()
@@ -468,6 +490,7 @@ async def _check_agents_at_once(
     else:
         ids = list(dict.fromkeys(request.agent_ids))  # drop repeats, keep the order
         check_agents("agent_ids", ids, settings)
+    check_work(points, len(ids), settings)
     states, missing = [], []
     # Read only here: the states may be shared with other checks (no copy per agent).
     for agent_id, state in zip(ids, await services.store.get_many(ids, shared=True), strict=True):
@@ -475,7 +498,7 @@ async def _check_agents_at_once(
             missing.append(agent_id)
         else:
             states.append(state)
-    results = await answer_states(services, states, request, arrival) if states else []
+    results = await answer_states(services, states, request, points, arrival) if states else []
     return MultiCollisionCheckResponse(
         collision=any(r.collision for r in results),
         conservative=any(r.conservative for r in results),

@@ -8,22 +8,27 @@ tighter limits of the server settings (``max_prediction_steps``, ``max_trajector
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, NotRequired
 
 from pydantic import (
     BaseModel,
     ConfigDict,
+    Discriminator,
     Field,
+    Tag,
     computed_field,
     model_serializer,
     model_validator,
 )
+from typing_extensions import TypedDict
 
 from reach.contract import BOUND_COLUMNS
 
 #: Hard caps on array lengths (the settings may only lower them).
 PREDICTION_STEPS_CAP = 4096
 TRAJECTORY_POINTS_CAP = 100_000
+#: Trajectories one batch check may carry at most (``FRT_MAX_TRAJECTORIES`` is the tighter limit).
+TRAJECTORIES_CAP = 4096
 AGENTS_PER_CHECK_CAP = 10_000
 #: Hard cap of agents in one frame (``FRT_MAX_AGENTS_PER_FRAME`` is the tighter limit).
 AGENTS_PER_FRAME_CAP = 10_000
@@ -256,13 +261,61 @@ class BeliefOut(Response):
     beta_high: float
 
 
+Heading = Annotated[float, Field(ge=-ANGLE_MAX, le=ANGLE_MAX, description="radians from +x, CCW")]
+
+
 class TrajectoryPoint(Request):
     t: Time = Field(description="seconds, on the observations' clock")
     x: Coord
     y: Coord
+    heading: Heading | None = Field(None, description="the ego's heading; needed with a footprint")
 
 
 Trajectory = Annotated[list[TrajectoryPoint], Field(min_length=1, max_length=TRAJECTORY_POINTS_CAP)]
+
+
+class TrajectoryColumns(Request):
+    """One trajectory as columns (the same points as a list of ``{t, x, y, heading}``, parsed
+    several times faster: what the SDK sends)."""
+
+    t: list[Time] = Field(min_length=1, max_length=TRAJECTORY_POINTS_CAP)
+    x: list[Coord] = Field(min_length=1, max_length=TRAJECTORY_POINTS_CAP)
+    y: list[Coord] = Field(min_length=1, max_length=TRAJECTORY_POINTS_CAP)
+    heading: list[Heading] | None = Field(None, max_length=TRAJECTORY_POINTS_CAP)
+
+    @model_validator(mode="after")
+    def _same_lengths(self) -> TrajectoryColumns:
+        lengths = {len(self.t), len(self.x), len(self.y)}
+        if self.heading is not None:
+            lengths.add(len(self.heading))
+        if len(lengths) != 1:
+            raise ValueError("t, x, y and heading need one entry per point each")
+        return self
+
+
+def _trajectory_form(value: Any) -> str:
+    return "columns" if isinstance(value, dict | TrajectoryColumns) else "points"
+
+
+#: A trajectory of a batch: a list of points or its columns (errors say which form was read).
+BatchTrajectory = Annotated[
+    Annotated[Trajectory, Tag("points")] | Annotated[TrajectoryColumns, Tag("columns")],
+    Discriminator(_trajectory_form),
+]
+
+
+class Footprint(Request):
+    """The ego's box, along the heading of each trajectory point."""
+
+    length: float = Field(gt=0.0, le=50.0, description="metres, along the heading")
+    width: float = Field(gt=0.0, le=20.0, description="metres, across it")
+    rear_axle_to_center: float = Field(
+        0.0,
+        ge=-25.0,
+        le=25.0,
+        description="how far the box's centre lies ahead of the point along the heading (0: the "
+        "box is centred on the point)",
+    )
 
 
 Verdict = Literal["exact", "decision_exact", "conservative"]
@@ -426,7 +479,23 @@ class DeleteResponse(Response):
 
 
 class CollisionCheckRequest(Request):
-    trajectory: Trajectory
+    """A check of one ``trajectory`` or of a batch of ``trajectories`` (exactly one of the two)."""
+
+    trajectory: Trajectory | None = None
+    trajectories: list[BatchTrajectory] | None = Field(
+        None,
+        min_length=1,
+        max_length=TRAJECTORIES_CAP,
+        description="a batch: each answered on its own, in ``trajectories`` of the answer",
+    )
+    include_clearance: bool = Field(
+        False, description="with trajectories: each one's clearance per point too"
+    )
+    footprint: Footprint | None = Field(
+        None,
+        description="check the ego's box at each point (covered by discs: a lower bound of its "
+        "clearance) instead of the point",
+    )
     mode: Mode = Field(
         "tube",
         description="tube: every point against the whole-horizon set; time_indexed: a point at "
@@ -436,6 +505,22 @@ class CollisionCheckRequest(Request):
     deadline_ms: float | None = Field(
         None, gt=0.0, le=60_000.0, description="default: the server's; from the request's arrival"
     )
+
+    @model_validator(mode="after")
+    def _one_kind(self) -> CollisionCheckRequest:
+        if (self.trajectory is None) == (self.trajectories is None):
+            raise ValueError("give exactly one of trajectory and trajectories")
+        return self
+
+
+class TrajectoryAnswer(TypedDict):
+    """One trajectory of a batch check against one agent."""
+
+    collision: bool
+    first_collision_index: int | None
+    first_collision_time: float | None
+    min_clearance: float
+    clearance: NotRequired[list[float]]
 
 
 class CollisionCheckResponse(CollisionAnswer):
@@ -450,6 +535,18 @@ class CollisionCheckResponse(CollisionAnswer):
         "than the points' own while those are not drawn in time"
     )
     horizon_end: float = Field(description="time after which the FRT says nothing")
+    trajectories: list[TrajectoryAnswer] | None = Field(
+        None,
+        description="a batch check's answers, one per trajectory in order (then ``collision`` is "
+        "any of them, ``clearance`` empty and the first collision null); absent otherwise",
+    )
+
+    @model_serializer(mode="wrap")
+    def _drop_unset_trajectories(self, handler: Any) -> dict[str, Any]:
+        data = handler(self)
+        if self.trajectories is None:
+            data.pop("trajectories", None)
+        return data  # type: ignore[no-any-return]
 
     @computed_field(  # type: ignore[prop-decorator]
         description="exact: from the exact set; decision_exact: from a set containing the exact "

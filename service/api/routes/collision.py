@@ -1,11 +1,14 @@
-"""Collision checks of a robot trajectory against one agent or several."""
+"""Collision checks of a robot trajectory (or a batch of them) against one agent or several."""
 
 from __future__ import annotations
+
+from typing import Annotated
 
 from fastapi import APIRouter, Request
 
 from service.api import recent_checks
 from service.api.middleware import arrival_time
+from service.api.routes.json_body import body_openapi, json_body
 from service.api.routes.model_json import ModelJSONResponse
 from service.api.routes.params import AgentIdPath, ServicesDep
 from service.flows import checks
@@ -18,10 +21,20 @@ from service.wire.schemas import (
 
 router = APIRouter(prefix="/v1", tags=["collision"])
 
+OneAgentCheck = Annotated[CollisionCheckRequest, json_body(CollisionCheckRequest)]
+ManyAgentsCheck = Annotated[MultiCollisionCheckRequest, json_body(MultiCollisionCheckRequest)]
 
-@router.post("/agents/{agent_id}/collision-check", response_model=CollisionCheckResponse)
+
+@router.post(
+    "/agents/{agent_id}/collision-check",
+    response_model=CollisionCheckResponse,
+    openapi_extra=body_openapi(CollisionCheckRequest),
+)
 async def check_agent(
-    agent_id: AgentIdPath, body: CollisionCheckRequest, request: Request, services: ServicesDep
+    agent_id: AgentIdPath,
+    body: OneAgentCheck,
+    request: Request,
+    services: ServicesDep,
 ) -> ModelJSONResponse:
     """Is the trajectory inside C = K ⊕ R_col? Answers within ``deadline_ms``, conservatively if
     the exact set is not ready."""
@@ -30,9 +43,15 @@ async def check_agent(
     return ModelJSONResponse(answer)
 
 
-@router.post("/collision-check", response_model=MultiCollisionCheckResponse)
+@router.post(
+    "/collision-check",
+    response_model=MultiCollisionCheckResponse,
+    openapi_extra=body_openapi(MultiCollisionCheckRequest),
+)
 async def check_many(
-    body: MultiCollisionCheckRequest, request: Request, services: ServicesDep
+    body: ManyAgentsCheck,
+    request: Request,
+    services: ServicesDep,
 ) -> ModelJSONResponse:
     """The same check against several agents (``agent_ids``) or all of them (``null``)."""
     answer = await checks.check_agents_at_once(services, body, arrival_time(request.scope))

@@ -1,0 +1,186 @@
+"""What one collision check measures: its trajectories' points, flattened into one array, or the
+discs covering the ego's footprint at each point (``reach.footprint``), and the way back from the
+distances of those probes to per-point distances and per-trajectory answers.
+
+Every trajectory of a check, every point and every disc go through the sets' clearance in one
+call per agent; per trajectory, the minimum clearance and the first colliding point come from
+segment reductions over the flattened rows.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from reach.footprint import DiscCover, disc_centres, disc_cover, footprint_distances
+from service.wire.errors import FieldError
+from service.wire.limits import RequestLimits, check_length, check_trajectory
+from service.wire.schemas import CollisionCheckRequest, TrajectoryColumns, TrajectoryPoint
+
+
+@dataclass(frozen=True)
+class CheckPoints:
+    """The points of a check's trajectories, flattened in order (``starts[k]``: trajectory k's
+    first row), and what is measured at them: the points, or their footprints' discs."""
+
+    xy: np.ndarray
+    times: np.ndarray
+    starts: np.ndarray
+    cover: DiscCover | None
+    batch: bool
+    headings: np.ndarray | None = None
+
+    @property
+    def n_points(self) -> int:
+        return len(self.times)
+
+    @property
+    def probe_xy(self) -> np.ndarray:
+        """Where distances to the sets are measured: ``[points * discs, 2]``."""
+        if self.cover is None:
+            return self.xy
+        assert self.headings is not None
+        return disc_centres(self.xy, self.headings, self.cover)
+
+    @property
+    def probe_times(self) -> np.ndarray:
+        return self.times if self.cover is None else np.repeat(self.times, self.cover.count)
+
+    def point_distances(self, probe_distances: np.ndarray) -> np.ndarray:
+        """Distances ``[..., points]`` of each point (its footprint: a lower bound) to the set,
+        from those of the probes."""
+        if self.cover is None:
+            return probe_distances
+        return footprint_distances(probe_distances, self.cover)
+
+
+def check_points(request: CollisionCheckRequest, limits: RequestLimits) -> CheckPoints:
+    """The points of ``request`` (its ``trajectory`` or its ``trajectories``), checked against the
+    server's limits and, with a footprint, for a heading at every point: 422 naming the field."""
+    if request.trajectories is not None:
+        field, parts = "trajectories", list(request.trajectories)
+        check_length(field, parts, limits.max_trajectories)
+    else:
+        field, parts = "trajectory", [request.trajectory]
+    columns = [
+        _columns(f"{field}.{k}" if request.trajectories else field, p, limits)
+        for k, p in enumerate(parts)
+    ]
+    lengths = np.array([len(c[0]) for c in columns])
+    total = int(lengths.sum())
+    cover = None
+    if request.footprint is not None:
+        fp = request.footprint
+        cover = disc_cover(fp.length, fp.width, fp.rear_axle_to_center)
+    probes = total * (1 if cover is None else cover.count)
+    if probes > limits.max_check_points:
+        raise FieldError(
+            field,
+            f"{total} points{'' if cover is None else f' x {cover.count} footprint discs'} "
+            f"exceed the {limits.max_check_points} one check may measure",
+        )
+    headings = None
+    if cover is not None:
+        headings = np.concatenate(
+            [
+                _headings(field, k, c, request.trajectories is not None)
+                for k, c in enumerate(columns)
+            ]
+        )
+    return CheckPoints(
+        xy=np.stack(
+            [np.concatenate([c[1] for c in columns]), np.concatenate([c[2] for c in columns])],
+            axis=1,
+        ),
+        times=np.concatenate([c[0] for c in columns]),
+        starts=np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.intp),
+        cover=cover,
+        batch=request.trajectories is not None,
+        headings=headings,
+    )
+
+
+Columns = tuple[np.ndarray, np.ndarray, np.ndarray, list[float | None] | None]
+
+
+def _columns(field: str, part: Any, limits: RequestLimits) -> Columns:
+    """(t, x, y, heading) of one trajectory in either form."""
+    check_trajectory(field, part.t if isinstance(part, TrajectoryColumns) else part, limits)
+    if isinstance(part, TrajectoryColumns):
+        return (
+            np.asarray(part.t, dtype=np.float64),
+            np.asarray(part.x, dtype=np.float64),
+            np.asarray(part.y, dtype=np.float64),
+            part.heading,
+        )
+    points: list[TrajectoryPoint] = part
+    return (
+        np.array([p.t for p in points], dtype=np.float64),
+        np.array([p.x for p in points], dtype=np.float64),
+        np.array([p.y for p in points], dtype=np.float64),
+        [p.heading for p in points],
+    )
+
+
+def _headings(field: str, k: int, columns: Columns, batch: bool) -> np.ndarray:
+    where = f"{field}.{k}" if batch else field
+    heading = columns[3]
+    if heading is None:
+        raise FieldError(f"{where}.heading", "a footprint needs a heading at every point")
+    missing = [i for i, h in enumerate(heading) if h is None]
+    if missing:
+        raise FieldError(
+            f"{where}.{missing[0]}.heading", "a footprint needs a heading at every point"
+        )
+    return np.asarray(heading, dtype=np.float64)
+
+
+def trajectory_answers(
+    clearance: np.ndarray, points: CheckPoints, include_clearance: bool
+) -> list[list[dict[str, Any]]]:
+    """Per agent, per trajectory: ``{collision, first_collision_index, first_collision_time,
+    min_clearance}`` (and ``clearance`` per point if asked) from the clearances ``[A, points]``."""
+    if clearance.shape[0] == 0:
+        return []
+    starts = points.starts
+    ends = np.append(starts[1:], points.n_points)
+    minimum = np.minimum.reduceat(clearance, starts, axis=1)
+    rows = np.arange(points.n_points)
+    first = np.minimum.reduceat(
+        np.where(clearance < 0.0, rows[None, :], points.n_points), starts, axis=1
+    )
+    hit = first < ends[None, :]
+    minimum_rows, first_rows, hit_rows = minimum.tolist(), first.tolist(), hit.tolist()
+    times = points.times.tolist()
+    per_point = clearance.tolist() if include_clearance else None
+    answers = []
+    for a in range(clearance.shape[0]):
+        agent = []
+        for k, start in enumerate(starts.tolist()):
+            index = first_rows[a][k] if hit_rows[a][k] else None
+            entry = {
+                "collision": index is not None,
+                "first_collision_index": None if index is None else index - start,
+                "first_collision_time": None if index is None else times[index],
+                "min_clearance": minimum_rows[a][k],
+            }
+            if per_point is not None:
+                entry["clearance"] = per_point[a][start : int(ends[k])]
+            agent.append(entry)
+        answers.append(agent)
+    return answers
+
+
+def check_work(points: CheckPoints, agents: int, limits: RequestLimits) -> None:
+    """422 if measuring ``points`` against ``agents`` agents exceeds what one check may do."""
+    probes = (
+        len(points.probe_times) if points.cover is None else points.n_points * points.cover.count
+    )
+    if probes * agents > limits.max_check_work:
+        raise FieldError(
+            "trajectories" if points.batch else "trajectory",
+            f"{probes} points against {agents} agents exceed the {limits.max_check_work} "
+            "point-agent pairs one check may measure: check fewer agents or trajectories",
+        )

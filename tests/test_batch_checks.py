@@ -1,0 +1,356 @@
+"""Batch checks and the ego's footprint (API.md, "Batch checks, footprints, constraints").
+
+Ground truth is independent of the clearance code: a footprint's box is a shapely polygon tested
+against the agent's C as the contours route draws it (K buffered by R_col, a polygon inscribed in
+the true C), and a batch's answers are those of the same trajectories checked one by one.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import uuid
+
+import httpx
+import numpy as np
+import pytest
+from frt_client import FRTClient, ValidationError
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from shapely.affinity import rotate, translate
+from shapely.geometry import Point, box, shape
+
+from reach.footprint import MAX_DISCS, disc_centres, disc_cover, footprint_distances
+from tests.conftest import LiveServer
+
+STEPS = 6
+#: How far inside the true C the contours' polygon of C may lie (K buffered with 8 segments per
+#: quarter circle: R_col (1 - cos(pi / 32)) for R_col up to 2 m).
+POLYGON_SLACK = 2.0 * (1.0 - math.cos(math.pi / 32)) + 1e-6
+#: GeoJSON coordinates are rounded to the millimetre: each vertex moves by up to this.
+ROUNDING = 0.5e-3 * math.sqrt(2.0) + 1e-9
+
+
+def observation(t: float = 0.0) -> dict:
+    return {
+        "timestamp": t,
+        "state": {"x": 0.0, "y": 0.0, "heading": 0.3, "speed": 6.0},
+        "prediction": {
+            "dt": 0.5,
+            "mean": [[0.05, 0.3]] * STEPS,
+            "cov": [[[0.02, 0.0], [0.0, 0.4]]] * STEPS,
+        },
+    }
+
+
+@pytest.fixture(scope="module")
+def agent(live_server: LiveServer) -> str:
+    agent_id = f"batch-{uuid.uuid4().hex[:8]}"
+    with httpx.Client(base_url=live_server.url, timeout=30.0) as http:
+        answer = http.post(
+            f"/v1/agents/{agent_id}/observations",
+            params={"wait_frt_ms": 10_000},
+            json=observation(),
+        )
+        assert answer.status_code == 200, answer.text
+        assert answer.json()["frt_ready"]
+    return agent_id
+
+
+def check(http: httpx.Client, agent_id: str, body: dict) -> dict:
+    answer = http.post(f"/v1/agents/{agent_id}/collision-check", json={"deadline_ms": 5000, **body})
+    assert answer.status_code == 200, answer.text
+    return answer.json()
+
+
+def random_trajectories(rng: np.random.Generator, count: int, points: int) -> list[list[dict]]:
+    """Straight lines through the region the agent's set covers, 0.1 s apart, random headings."""
+    out = []
+    for _ in range(count):
+        start = rng.uniform([-5.0, -12.0], [30.0, 16.0])
+        heading = rng.uniform(-math.pi, math.pi)
+        speed = rng.uniform(0.0, 12.0)
+        out.append(
+            [
+                {
+                    "t": 0.1 * k,
+                    "x": float(start[0] + speed * 0.1 * k * math.cos(heading)),
+                    "y": float(start[1] + speed * 0.1 * k * math.sin(heading)),
+                    "heading": float(heading),
+                }
+                for k in range(points)
+            ]
+        )
+    return out
+
+
+# ------------------------------------------------------------------------------- the disc cover
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    length=st.floats(0.2, 12.0),
+    width=st.floats(0.2, 4.0),
+    ahead=st.floats(-2.0, 2.0),
+    heading=st.floats(-math.pi, math.pi),
+)
+def test_the_discs_contain_the_box_with_the_fewest_discs(
+    length: float, width: float, ahead: float, heading: float
+) -> None:
+    cover = disc_cover(length, width, ahead)
+    centres = disc_centres(np.array([[1.0, -2.0]]), np.array([heading]), cover)
+    footprint = rotate(
+        translate(box(-length / 2, -width / 2, length / 2, width / 2), ahead, 0.0),
+        heading,
+        origin=(0.0, 0.0),
+        use_radians=True,
+    )
+    footprint = translate(footprint, 1.0, -2.0)
+    rng = np.random.default_rng(0)
+    corners = np.array(footprint.exterior.coords)
+    inside = [
+        p
+        for p in rng.uniform(corners.min(axis=0), corners.max(axis=0), size=(400, 2))
+        if footprint.contains(Point(p))
+    ]
+    for p in [*corners, *inside]:
+        assert np.min(np.hypot(*(centres - p).T)) <= cover.radius + 1e-9
+    if cover.count < MAX_DISCS:
+        assert cover.side_reach <= 0.1 + 1e-9
+    if cover.count > 1:  # one disc fewer would reach further past the long sides
+        assert math.hypot(length / (2 * (cover.count - 1)), width / 2) - width / 2 > 0.1
+
+
+def test_footprint_distance_is_the_nearest_disc_less_its_radius() -> None:
+    cover = disc_cover(4.0, 2.0)
+    distances = np.arange(2 * cover.count, dtype=float)[None, :]
+    result = footprint_distances(distances, cover)
+    assert result.shape == (1, 2)
+    assert result[0].tolist() == pytest.approx(
+        [0.0 - cover.radius, float(cover.count) - cover.radius]
+    )
+
+
+# ------------------------------------------------------------------------------------- batches
+
+
+def test_a_batch_answers_each_trajectory_as_a_single_check_would(
+    live_server: LiveServer, agent: str
+) -> None:
+    rng = np.random.default_rng(1)
+    trajectories = random_trajectories(rng, 24, 20)
+    with httpx.Client(base_url=live_server.url, timeout=30.0) as http:
+        for mode in ("tube", "time_indexed"):
+            batch = check(http, agent, {"trajectories": trajectories, "mode": mode})
+            columns = [
+                {key: [p[key] for p in points] for key in ("t", "x", "y")}
+                for points in trajectories
+            ]
+            as_columns = check(
+                http, agent, {"trajectories": columns, "mode": mode, "include_clearance": True}
+            )
+            assert batch["clearance"] == [] and batch["first_collision_index"] is None
+            assert batch["collision"] == any(t["collision"] for t in batch["trajectories"])
+            collided = 0
+            for k, points in enumerate(trajectories):
+                single = check(http, agent, {"trajectory": points, "mode": mode})
+                entry, full = batch["trajectories"][k], as_columns["trajectories"][k]
+                assert entry["collision"] == single["collision"]
+                assert entry["first_collision_index"] == single["first_collision_index"]
+                assert entry["first_collision_time"] == single["first_collision_time"]
+                assert entry["min_clearance"] == pytest.approx(min(single["clearance"]))
+                assert "clearance" not in entry
+                assert full["clearance"] == pytest.approx(single["clearance"])
+                collided += entry["collision"]
+            assert 0 < collided < len(trajectories)  # the sample meets the set and misses it
+
+
+def test_a_batch_against_several_agents(live_server: LiveServer, agent: str) -> None:
+    other = f"batch-{uuid.uuid4().hex[:8]}"
+    rng = np.random.default_rng(2)
+    trajectories = random_trajectories(rng, 8, 10)
+    with httpx.Client(base_url=live_server.url, timeout=30.0) as http:
+        http.post(f"/v1/agents/{other}/observations", json=observation()).raise_for_status()
+        answer = http.post(
+            "/v1/collision-check",
+            json={"trajectories": trajectories, "agent_ids": [agent, other, "nobody"]},
+        )
+        assert answer.status_code == 200, answer.text
+        body = answer.json()
+        assert [r["agent_id"] for r in body["results"]] == [agent, other]
+        assert body["missing"] == ["nobody"]
+        for result in body["results"]:
+            assert len(result["trajectories"]) == len(trajectories)
+        single = check(http, agent, {"trajectory": trajectories[3]})
+        assert body["results"][0]["trajectories"][3]["collision"] == single["collision"]
+
+
+# ----------------------------------------------------------------------------------- footprints
+
+
+def test_a_footprint_meeting_c_is_never_reported_clear(live_server: LiveServer, agent: str) -> None:
+    length, width, ahead, radius = 4.8, 1.9, 1.4, 1.0
+    cover = disc_cover(length, width, ahead)
+    rng = np.random.default_rng(3)
+    points = [p for t in random_trajectories(rng, 30, 10) for p in t]
+    with httpx.Client(base_url=live_server.url, timeout=30.0) as http:
+        c_set = shape(
+            http.get(
+                f"/v1/agents/{agent}/frt",
+                params={"include": "C", "collision_radius": radius},
+            ).json()["tube"]["C"]
+        )
+        answer = check(
+            http,
+            agent,
+            {
+                "trajectory": points,
+                "collision_radius": radius,
+                "footprint": {"length": length, "width": width, "rear_axle_to_center": ahead},
+            },
+        )
+    assert not answer["conservative"]
+    met = 0
+    for p, clearance in zip(points, answer["clearance"], strict=True):
+        footprint = translate(
+            rotate(
+                box(ahead - length / 2, -width / 2, ahead + length / 2, width / 2),
+                p["heading"],
+                origin=(0.0, 0.0),
+                use_radians=True,
+            ),
+            p["x"],
+            p["y"],
+        )
+        distance = footprint.distance(c_set)
+        if footprint.intersects(c_set):
+            met += 1
+            assert clearance < ROUNDING
+        else:  # a lower bound of the box's distance, short by at most the cover's overreach
+            assert clearance <= distance + ROUNDING
+            assert clearance >= distance - POLYGON_SLACK - cover.overreach - ROUNDING
+    assert 0 < met < len(points)
+
+
+# ------------------------------------------------------------------------------------ bad input
+
+
+def agent_version(http: httpx.Client, agent_id: str) -> int:
+    return http.get(f"/v1/agents/{agent_id}").json()["frt_version"]
+
+
+@pytest.mark.parametrize(
+    ("body", "field"),
+    [
+        ({"trajectories": [[{"t": 0.0, "x": 0.0, "y": 0.0}]] * 1025}, "trajectories"),
+        (
+            {
+                "trajectory": [{"t": 0.0, "x": 1.0, "y": 1.0}],
+                "footprint": {"length": 4, "width": 2},
+            },
+            "trajectory.0.heading",
+        ),
+        (
+            {
+                "trajectories": [{"t": [0.0], "x": [1.0], "y": [1.0]}],
+                "footprint": {"length": 4, "width": 2},
+            },
+            "trajectories.0.heading",
+        ),
+        (
+            {
+                "trajectory": [{"t": 0.0, "x": 1.0, "y": 1.0, "heading": 0.0}],
+                "footprint": {"length": -4, "width": 2},
+            },
+            "footprint.length",
+        ),
+        ({"trajectories": [{"t": [0.0, 0.1], "x": [1.0], "y": [1.0, 2.0]}]}, "trajectories.0"),
+        ({"trajectories": []}, "trajectories"),
+        ({}, "body"),
+        (
+            {
+                "trajectory": [{"t": 0.0, "x": 0.0, "y": 0.0}],
+                "trajectories": [[{"t": 0.0, "x": 0.0, "y": 0.0}]],
+            },
+            "body",
+        ),
+    ],
+)
+def test_bad_batch_input_is_a_422_naming_the_field_and_changes_nothing(
+    live_server: LiveServer, agent: str, body: dict, field: str
+) -> None:
+    with httpx.Client(base_url=live_server.url, timeout=30.0) as http:
+        before = agent_version(http, agent)
+        answer = http.post(f"/v1/agents/{agent}/collision-check", json=body)
+        assert answer.status_code == 422, answer.text
+        assert answer.json()["field"].startswith(field), answer.json()
+        assert agent_version(http, agent) == before
+
+
+def test_a_nan_heading_is_a_422_naming_it(live_server: LiveServer, agent: str) -> None:
+    body = '{"trajectory": [{"t": 0, "x": 0, "y": 0, "heading": NaN}], "footprint": {"length": 4, "width": 2}}'
+    with httpx.Client(base_url=live_server.url, timeout=30.0) as http:
+        answer = http.post(
+            f"/v1/agents/{agent}/collision-check",
+            content=body,
+            headers={"content-type": "application/json"},
+        )
+    assert answer.status_code == 422
+    assert answer.json()["field"] == "trajectory.0.heading"
+
+
+def test_too_much_work_for_one_check_is_a_422(live_server: LiveServer, agent: str) -> None:
+    points = [{"t": 0.01 * k, "x": 0.0, "y": 0.0, "heading": 0.0} for k in range(1000)]
+    body = {"trajectories": [points] * 120, "footprint": {"length": 4.8, "width": 1.9}}
+    with httpx.Client(base_url=live_server.url, timeout=30.0) as http:
+        answer = http.post(f"/v1/agents/{agent}/collision-check", content=json.dumps(body))
+    assert answer.status_code == 422
+    assert answer.json()["field"] == "trajectories"
+
+
+# ------------------------------------------------------------------------------------------ SDK
+
+
+def test_the_sdk_sends_a_batch_with_a_footprint_over_http_and_the_stream(
+    live_server: LiveServer, agent: str
+) -> None:
+    rng = np.random.default_rng(4)
+    trajectories = random_trajectories(rng, 12, 15)
+    # (M, N, 4) rows (t, x, y, heading): the array form a sampling planner holds.
+    array = np.array([[[p["t"], p["x"], p["y"], p["heading"]] for p in t] for t in trajectories])
+    footprint = {"length": 4.8, "width": 1.9, "rear_axle_to_center": 1.4}
+    with httpx.Client(base_url=live_server.url, timeout=30.0) as http:
+        raw = check(
+            http,
+            agent,
+            {"trajectories": trajectories, "footprint": footprint, "include_clearance": True},
+        )
+    with FRTClient(live_server.url) as frt, frt.stream() as stream:
+        answers = [
+            call(
+                agent,
+                trajectories=array,
+                footprint=(4.8, 1.9, 1.4),
+                include_clearance=True,
+                deadline_ms=5000,
+            )
+            for call in (frt.collision_check, stream.collision_check)
+        ]
+        many = frt.collision_check_many(
+            agent_ids=[agent], trajectories=array, footprint=footprint, deadline_ms=5000
+        )
+        with pytest.raises(ValidationError):
+            frt.collision_check(agent, array[0], trajectories=array)
+    for answer in [*answers, many.results[0]]:
+        assert answer.trajectories is not None
+        assert [t.collision for t in answer.trajectories] == [
+            t["collision"] for t in raw["trajectories"]
+        ]
+        assert [t.min_clearance for t in answer.trajectories] == pytest.approx(
+            [t["min_clearance"] for t in raw["trajectories"]]
+        )
+    assert answers[0].trajectories[0].clearance == pytest.approx(
+        raw["trajectories"][0]["clearance"]
+    )
+    assert many.results[0].trajectories[0].clearance is None
+    assert any(t["collision"] for t in raw["trajectories"])

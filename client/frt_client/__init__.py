@@ -11,6 +11,7 @@ subclasses of :class:`FRTError` (see :mod:`frt_client.errors`). numpy arrays are
 lists are, but numpy is not required.
 """
 
+from frt_client.adapters import from_apollo, from_autoware
 from frt_client.async_client import AsyncFRTClient
 from frt_client.async_stream import AsyncStream
 from frt_client.client import FRTClient
@@ -115,6 +116,8 @@ __all__ = [
     "TrajectoryPoint",
     "UnavailableError",
     "ValidationError",
+    "from_apollo",
+    "from_autoware",
     "from_mixture",
     "from_trajectories",
 ]

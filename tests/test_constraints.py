@@ -1,0 +1,221 @@
+"""Constraints for MPC (API.md, "Batch checks, footprints, constraints"): per requested time, convex
+pieces ``A x <= b`` in the world frame whose union contains C = K ⊕ R_col.
+
+Ground truth is independent of ``reach.constraints``:
+
+* positions reached at exactly t by RK4 rollouts of the dynamics under the set's own control
+  bounds (``models.rollout``, the evaluation's mix of extremal and switching schedules), each moved
+  by R_col in 32 directions and along every side's normal: points of the true C;
+* random unions of boxes, discs and crescents (some far apart, some not convex): their vertices
+  moved by r in 32 directions, and random points within r of them.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import shapely
+from shapely.affinity import rotate
+from shapely.geometry import Point, Polygon, box
+
+from models.rollout import rk4_rollout, sample_initial_states, sample_reference_schedules
+from reach.agent_classes import agent_class
+from reach.constraints import ConvexPiece, outer_pieces, slice_pieces
+from reach.contract import COL, HORIZON_S, N_INPUTS
+from reach.engine import FRTEngine
+from reach.frames import Pose
+from reach.union import conservative_union, exact_union
+
+#: GeoJSON coordinates are rounded to the millimetre: each vertex moves by up to this.
+ROUNDING = 0.5e-3 * math.sqrt(2.0) + 1e-9
+#: Times asked: on the 0.1 s grid, between its instants, and the ends of the horizon.
+TIMES = (0.0, 0.05, 0.35, 1.0, 1.55, 2.0, 2.95, 3.0)
+#: The pieces' total area over C's: at most this.
+AREA_FACTOR = 1.15
+DIRECTIONS = 32
+
+
+# ------------------------------------------------------------------------------- ground truth
+
+
+def positions_at(v_start: float, bounds: np.ndarray, t: float, n: int, seed: int) -> np.ndarray:
+    """Positions [n, 2] reached at exactly t (human frame) by rollouts of the true dynamics."""
+    rng = np.random.default_rng(seed)
+    params = np.zeros((n, N_INPUTS))
+    params[:, COL["v_start"]] = v_start
+    params[:, 6:] = bounds
+    start = sample_initial_states(params[:, COL["v_start"]], rng, on_boundary=0.5)
+    if t == 0.0:
+        return np.stack(start[:2], axis=1)
+    a1, a2, switches = sample_reference_schedules(n, HORIZON_S, rng)
+    steps = max(2, round(t / 0.01))
+    end, _ = rk4_rollout(start, params, np.full(n, t), a1, a2, switches * (t / HORIZON_S), steps)
+    return np.stack(end[:2], axis=1)
+
+
+def to_world(xy: np.ndarray, pose: Pose) -> np.ndarray:
+    c, s = math.cos(pose.heading), math.sin(pose.heading)
+    return xy @ np.array([[c, s], [-s, c]]) + np.array([pose.x, pose.y])
+
+
+def moved_by(xy: np.ndarray, radius: float, normals: np.ndarray) -> np.ndarray:
+    """Each point, and each point moved by ``radius`` in 32 directions and along each normal."""
+    angles = 2.0 * math.pi * np.arange(DIRECTIONS) / DIRECTIONS
+    steps = np.concatenate([np.stack([np.cos(angles), np.sin(angles)], axis=1), normals])
+    return np.concatenate([xy, (xy[:, None, :] + radius * steps[None, :, :]).reshape(-1, 2)])
+
+
+def outside(pieces: list[ConvexPiece], xy: np.ndarray, tolerance: float = 0.0) -> np.ndarray:
+    """The points of ``xy`` in no piece."""
+    inside = np.zeros(len(xy), dtype=bool)
+    for piece in pieces:
+        inside |= piece.contains(xy, tolerance)
+    return xy[~inside]
+
+
+def half_plane_polygon(a: np.ndarray, b: np.ndarray) -> Polygon:
+    """{x : a x <= b} cut from a 10 km box, one half-plane at a time."""
+    polygon = box(-1e4, -1e4, 1e4, 1e4)
+    for (ax, ay), offset in zip(a, b, strict=True):
+        # The half-plane as a large rectangle on the inner side of its line.
+        foot = np.array([ax, ay]) * offset
+        along = np.array([-ay, ax])
+        corners = [foot + 3e4 * along, foot - 3e4 * along]
+        corners += [corners[1] - 3e4 * np.array([ax, ay]), corners[0] - 3e4 * np.array([ax, ay])]
+        polygon = polygon.intersection(Polygon(corners))
+    return polygon
+
+
+# -------------------------------------------------------------------- reach.constraints alone
+
+
+def random_shape(rng: np.random.Generator) -> shapely.Geometry:
+    """A union of 1-5 boxes, discs and crescents, scattered so some overlap and some do not."""
+    parts = []
+    for _ in range(int(rng.integers(1, 6))):
+        centre = rng.uniform(-25.0, 25.0, 2)
+        kind = rng.integers(0, 3)
+        if kind == 0:
+            length, width = rng.uniform(0.3, 20.0), rng.uniform(0.2, 5.0)
+            part = box(-length / 2, -width / 2, length / 2, width / 2)
+            part = rotate(part, rng.uniform(0, 180))
+        elif kind == 1:
+            part = Point(0, 0).buffer(rng.uniform(0.3, 6.0), quad_segs=int(rng.integers(1, 12)))
+        else:
+            outer = rng.uniform(3.0, 12.0)
+            crescent = (
+                Point(0, 0).buffer(outer).difference(Point(outer * 0.4, 0).buffer(outer * 0.9))
+            )
+            part = rotate(crescent, rng.uniform(0, 360), origin=(0, 0))
+        parts.append(shapely.affinity.translate(part, *centre))
+    return shapely.union_all(parts)
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_the_pieces_contain_c_of_random_shapes(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    k_set = random_shape(rng)
+    radius = float(rng.choice([0.0, rng.uniform(0.1, 3.0)]))
+    max_sides, max_pieces = int(rng.integers(3, 65)), int(rng.integers(1, 17))
+    pieces = outer_pieces(k_set, radius, max_sides, max_pieces)
+    assert 1 <= len(pieces) <= max_pieces
+    for piece in pieces:
+        assert 3 <= len(piece.normals) <= max_sides
+        assert np.allclose(np.hypot(*piece.normals.T), 1.0, atol=1e-12)
+        assert piece.contains(piece.corners, 1e-6).all()
+    vertices = shapely.get_coordinates(k_set)
+    low, high = vertices.min(axis=0) - radius, vertices.max(axis=0) + radius
+    random = rng.uniform(low, high, (4000, 2))
+    random = random[shapely.distance(k_set, shapely.points(random)) <= radius]
+    points = np.concatenate([moved_by(vertices, radius, np.zeros((0, 2))), random])
+    assert len(outside(pieces, points)) == 0
+    pose = Pose(*rng.uniform(-1e5, 1e5, 2), rng.uniform(-10.0, 10.0))
+    world = [piece.in_world(pose) for piece in pieces]
+    assert len(outside(world, to_world(points, pose))) == 0
+
+
+def test_a_convex_set_is_one_tight_piece_and_a_triangle_still_holds_it() -> None:
+    k_set = Point(0, 0).buffer(5.0, quad_segs=4)  # a 16-gon
+    (piece,) = outer_pieces(k_set, 1.5, max_sides=16, max_pieces=16)
+    assert piece.area() / k_set.buffer(1.5, quad_segs=64).area < 1.03
+    (triangle,) = outer_pieces(k_set, 1.5, max_sides=3, max_pieces=1)
+    assert len(triangle.normals) == 3
+    ring = shapely.get_coordinates(k_set.buffer(1.5, quad_segs=64))
+    assert len(outside([triangle], ring)) == 0
+
+
+def test_parts_far_apart_get_a_piece_each_and_an_l_is_cut() -> None:
+    two = shapely.union_all([Point(0, 0).buffer(2.0), Point(60, 0).buffer(2.0)])
+    pieces = outer_pieces(two, 1.0, max_pieces=4)
+    assert len(pieces) == 2
+    assert sum(p.area() for p in pieces) < 1.05 * two.buffer(1.0).area
+    (hull,) = outer_pieces(two, 1.0, max_pieces=1)
+    assert hull.area() > 5 * two.buffer(1.0).area
+    ell = shapely.union_all([box(0, 0, 30, 2), box(0, 0, 2, 30)])
+    cut = outer_pieces(ell, 0.5, max_pieces=4)
+    (whole,) = outer_pieces(ell, 0.5, max_pieces=1)
+    c_area = ell.buffer(0.5).area
+    assert len(cut) >= 2
+    assert sum(p.area() for p in cut) < 1.2 * c_area < whole.area()
+
+
+def test_out_of_range_counts_are_refused() -> None:
+    for sides, pieces in ((2, 4), (65, 4), (16, 0), (16, 17)):
+        with pytest.raises(ValueError):
+            outer_pieces(Point(0, 0).buffer(1.0), 1.0, sides, pieces)
+
+
+# ------------------------------------------------------------ the engine's sets, every kind
+
+
+def full_bounds(name: str) -> np.ndarray:
+    k = agent_class(name)
+    return np.array([-k.u1_limit, -k.u2_limit] * 2 + [k.u1_limit, k.u2_limit] * 2)
+
+
+SETS = [
+    ("car", 8.0, np.array([-0.3, -2.0, -0.2, -1.0, 0.2, 1.5, 0.3, 2.0])),
+    ("car", 15.0, np.array([-0.05, -4.0, -0.05, -4.0, 0.05, 0.5, 0.05, 0.5])),
+    ("pedestrian", 1.4, full_bounds("pedestrian")),
+    ("cyclist", 0.0, full_bounds("cyclist")),
+]
+
+
+@pytest.mark.parametrize(("name", "speed", "bounds"), SETS, ids=[f"{n}-{v}" for n, v, _ in SETS])
+def test_exact_and_conservative_sets_pieces_hold_rollouts(
+    name: str, speed: float, bounds: np.ndarray
+) -> None:
+    engine = FRTEngine(ranges=agent_class(name).ranges())
+    pose = Pose(120.0, -40.0, 2.2)
+    radius = agent_class(name).collision_radius_m
+    for frt in (engine.exact(pose, speed, bounds), engine.conservative(pose, speed, bounds)):
+        for t in TIMES:
+            pieces = slice_pieces(frt, t, radius)
+            normals = np.concatenate([p.normals for p in pieces])
+            reached = to_world(positions_at(speed, bounds, t, 1500, seed=round(100 * t)), pose)
+            missed = outside(pieces, moved_by(reached, radius, normals))
+            assert len(missed) == 0, (name, speed, frt.conservative, t, missed[:3])
+
+
+def test_a_union_of_modes_pieces_hold_every_modes_rollouts() -> None:
+    engine = FRTEngine()
+    modes = np.array(
+        [
+            [0.2, 0.0, 0.2, 0.0, 0.4, 1.0, 0.4, 1.0],  # left
+            [-0.4, 0.0, -0.4, 0.0, -0.2, 1.0, -0.2, 1.0],  # right
+            [-0.02, -6.0, -0.02, -6.0, 0.02, -4.0, 0.02, -4.0],  # braking hard
+        ]
+    )
+    pose = Pose(-3.0, 7.0, -0.4)
+    for frt in (
+        exact_union(engine, pose, 10.0, modes),
+        conservative_union(engine, pose, 10.0, modes),
+    ):
+        for t in (0.5, 1.55, 3.0):
+            pieces = slice_pieces(frt, t, 1.5, max_pieces=4)
+            normals = np.concatenate([p.normals for p in pieces])
+            for m, bounds in enumerate(modes):
+                reached = to_world(positions_at(10.0, bounds, t, 1000, seed=m), pose)
+                assert len(outside(pieces, moved_by(reached, 1.5, normals))) == 0, (m, t)

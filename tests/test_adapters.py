@@ -553,6 +553,13 @@ def test_bad_apollo_input_names_the_field(edit: Callable[[dict], object], field:
     assert caught.value.field == field
 
 
+def test_a_single_point_gives_no_step() -> None:
+    msg = apollo_message([(swerving_path(fine=0.1)[:1], 1.0)])
+    with pytest.raises(ValidationError) as caught:
+        from_apollo(msg)
+    assert caught.value.field == "trajectory.0"
+
+
 def test_bad_step_and_shape() -> None:
     msg = autoware_message([(walk(0.5, 1.4), 1.0)])
     with pytest.raises(ValidationError) as caught:

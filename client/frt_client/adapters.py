@@ -670,7 +670,14 @@ def _observation(
     kept = [p for p in paths if p.probability > 0]
     if not kept:
         raise ValidationError(f"{where}: no path with a positive probability", field=where)
-    dt = options.dt if options.dt is not None else max(kept, key=lambda p: p.probability).step
+    dt = options.dt
+    if dt is None:
+        best = max(kept, key=lambda p: p.probability)
+        if not math.isfinite(best.step):
+            raise ValidationError(
+                f"{best.where}: one point gives no step; pass dt", field=best.where
+            )
+        dt = best.step
     if not (isinstance(dt, int | float) and math.isfinite(dt) and dt > 0):
         raise ValidationError(f"dt must be a positive number, got {dt!r}", field="dt")
     modes = [_mode(p, start, float(dt), options) for p in kept]

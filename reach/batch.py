@@ -1,4 +1,4 @@
-"""Clearances of one trajectory against many sets at once: conservative and exact.
+"""Clearances of one trajectory (or a batch) against many sets at once: conservative and exact.
 
 A planner's check of 50 agents whose exact sets are late answers from 50 :class:`BoxTubeSet`\\ s;
 ``BoxTubeSet.clearance`` one by one is a dozen small numpy calls per agent. Here the agents'
@@ -9,12 +9,14 @@ from one call of the same kernel (``reach.engine.box_union_distances``), so the 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from shapely.geometry.base import BaseGeometry
 
 from reach.distances import box_union_distances, signed_distances
 from reach.frames import human_frames
+from reach.packed_rings import trajectory_surrogates
 from reach.sets import BoxTubeSet, FRTSet
 
 
@@ -68,6 +70,46 @@ def _tube_indices(sets: list[BoxTubeSet], t_rel: list[np.ndarray | None], n: int
             for frt, t in zip(sets, t_rel, strict=True)
         ]
     )
+
+
+@dataclass(frozen=True)
+class Reduction:
+    """What a batch check reads of each agent's distances: per trajectory (points
+    ``starts[k]:starts[k + 1]``) the least one and the first below ``thresholds[a]`` (agent a's)."""
+
+    starts: np.ndarray
+    thresholds: Sequence[float]
+
+
+def trajectory_surrogates_of(
+    sets: Sequence[FRTSet],
+    xy_world: np.ndarray,
+    t_rel: Sequence[np.ndarray | None],
+    reduction: Reduction,
+) -> list[np.ndarray]:
+    """Per set, surrogates of its :meth:`FRTSet.clearance` values (``reach.packed_rings``): the
+    same least value and first value below the set's threshold per trajectory, the signed
+    distances computed only where those need them."""
+    xy_world = np.asarray(xy_world, dtype=float).reshape(-1, 2)
+    n = xy_world.shape[0]
+    x, y = human_frames(xy_world, [s.pose for s in sets])
+    out = []
+    for a, (frt, t) in enumerate(zip(sets, t_rel, strict=True)):
+        index = np.full(n, frt.n_slices - 1) if t is None else frt.tube_indices(t)
+        present = np.zeros(frt.n_slices, dtype=bool)
+        present[index] = True
+        which = (np.cumsum(present) - 1)[index]  # each point's place among the tubes present
+        packed = frt.packed_tubes(tuple(np.flatnonzero(present).tolist()))
+        out.append(
+            trajectory_surrogates(
+                packed,
+                which,
+                np.stack([x[a], y[a]], axis=1),
+                reduction.starts,
+                reduction.thresholds[a],
+            )
+        )
+    return out
 
 
 def tube_clearances(

@@ -19,6 +19,7 @@ from reach.distances import box_union_distances, signed_distance, signed_distanc
 from reach.frames import Pose, to_human_frame, to_world_frame
 from reach.geojson import to_geojson
 from reach.notch import NotchCut
+from reach.packed_rings import PackedRings, pack_rings
 
 #: Consecutive 0.025 s sweeps per window (0.1 s). The conservative set has one box per window;
 #: the exact tube is cut to one outer polygon per window, the support functions' maximum over its
@@ -26,6 +27,8 @@ from reach.notch import NotchCut
 #: conservative set holds the exact one. (Polygons over windows longer than the boxes bulge past
 #: them between sweeps that step sideways: by up to 0.1 m with 0.1 s polygons and 0.05 s boxes.)
 SWEEPS_PER_WINDOW = 4
+#: Packs of tubes one set keeps (``FRTSet.packed_tubes``): a planner's batches ask for a few.
+MAX_PACKS = 4
 
 
 class FRTSet:
@@ -92,6 +95,16 @@ class FRTSet:
         tubes = np.empty(len(unique), dtype=object)
         tubes[:] = [self.tube(int(j)) for j in unique]
         return signed_distances(tubes, rows, xy)
+
+    def packed_tubes(self, indices: tuple[int, ...]) -> PackedRings:
+        """The tubes ``indices`` packed for ``reach.packed_rings``' kernels (polygon i of the pack
+        is tube ``indices[i]``), kept for the next batch check of this set."""
+        packs = self.__dict__.setdefault("_packed", {})
+        if indices not in packs:
+            if len(packs) >= MAX_PACKS:
+                packs.clear()
+            packs[indices] = pack_rings([self.tube(j) for j in indices])
+        return packs[indices]  # type: ignore[no-any-return]
 
     def missing_tubes(self, indices: list[int]) -> list[int]:
         """The tubes among ``indices`` not drawn yet (none where tubes cost nothing to draw)."""

@@ -153,3 +153,30 @@ def test_an_estimate_too_high_to_answer_exactly_comes_down(client: TestClient) -
         assert costs.exact.mean_s < 0.01
     finally:
         costs.exact = learned
+
+
+def test_a_batch_check_learns_its_own_cost_and_leaves_single_checks_theirs(
+    client: TestClient,
+) -> None:
+    client.post(
+        "/v1/agents/batch/observations", params={"wait_frt_ms": 5000}, json=observation(1.0)
+    )
+    single = {"trajectory": [{"t": 1.0 + 0.1 * i, "x": 2.0 + i, "y": 0.5} for i in range(10)]}
+    assert client.post("/v1/agents/batch/collision-check", json=single).status_code == 200
+    services = client.app.state.services  # type: ignore[attr-defined]
+    singles = CostEstimate(**vars(services.answer_costs.exact))
+    batch = {
+        "trajectories": [
+            {
+                "t": [1.0 + 0.1 * i for i in range(30)],
+                "x": [k + i for i in range(30)],
+                "y": [0.5] * 30,
+            }
+            for k in range(200)
+        ],
+        "deadline_ms": 5000.0,
+    }
+    answer = client.post("/v1/agents/batch/collision-check", json=batch).json()
+    assert answer["verdict"] == "exact" and len(answer["trajectories"]) == 200
+    assert services.batch_answer_costs.exact.measured
+    assert vars(services.answer_costs.exact) == vars(singles)

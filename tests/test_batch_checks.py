@@ -21,6 +21,8 @@ from shapely.affinity import rotate, translate
 from shapely.geometry import Point, box, shape
 
 from reach.footprint import MAX_DISCS, disc_centres, disc_cover, footprint_distances
+from service.wire.batch_body import parse_batch_check
+from service.wire.schemas import CollisionCheckRequest, MultiCollisionCheckRequest
 from tests.conftest import LiveServer
 
 STEPS = 6
@@ -354,3 +356,61 @@ def test_the_sdk_sends_a_batch_with_a_footprint_over_http_and_the_stream(
     )
     assert many.results[0].trajectories[0].clearance is None
     assert any(t["collision"] for t in raw["trajectories"])
+
+
+# ------------------------------------------------------------------------------ the bulk parser
+
+
+def test_the_bulk_parser_reads_a_batch_as_the_model_does() -> None:
+    body = {
+        "trajectories": [
+            {"t": [0, 0.1, 0.2], "x": [1.5, 2, -3e6], "y": [0.0, 1.0, 2.0]},
+            {"t": [0.0], "x": [1.0], "y": [2.0], "heading": [0.5]},
+        ],
+        "mode": "time_indexed",
+        "footprint": {"length": 4.0, "width": 2.0},
+        "agent_ids": None,
+    }
+    raw = json.dumps(body).encode()
+    bulk = parse_batch_check(raw, MultiCollisionCheckRequest)
+    model = MultiCollisionCheckRequest.model_validate_json(raw)
+    assert bulk is not None
+    assert bulk.model_dump(exclude={"trajectories"}) == model.model_dump(exclude={"trajectories"})
+    for ours, theirs in zip(bulk.trajectories, model.trajectories, strict=True):
+        for key in ("t", "x", "y", "heading"):
+            a, b = getattr(ours, key), getattr(theirs, key)
+            assert (a is None) == (b is None)
+            if a is not None:
+                assert np.asarray(a).tolist() == b
+
+
+@pytest.mark.parametrize(
+    "trajectories",
+    [
+        [{"t": [0.0, True], "x": [1.0, 2.0], "y": [1.0, 2.0]}],  # a boolean
+        [{"t": [0.0, "1"], "x": [1.0, 2.0], "y": [1.0, 2.0]}],  # a string
+        [{"t": [0.0, None], "x": [1.0, 2.0], "y": [1.0, 2.0]}],
+        [{"t": [0.0, 0.1], "x": [1.0], "y": [1.0, 2.0]}],  # lengths differ
+        [{"t": [0.0], "x": [1e8], "y": [1.0]}],  # beyond the coordinates' limit
+        [{"t": [0.0], "x": [1.0], "y": [1.0], "heading": [1e5]}],
+        [{"t": [0.0], "x": [1.0], "y": [1.0], "speed": [1.0]}],  # an unknown column
+        [{"t": [0.0], "x": [1.0]}],
+        [{"t": [], "x": [], "y": []}],
+        [[{"t": 0.0, "x": 1.0, "y": 1.0}]],  # the point form: the model's to read
+        [],
+    ],
+)
+def test_the_bulk_parser_leaves_what_it_does_not_take_to_the_model(trajectories: list) -> None:
+    raw = json.dumps({"trajectories": trajectories}).encode()
+    assert parse_batch_check(raw, CollisionCheckRequest) is None
+
+
+def test_the_bulk_parser_leaves_a_bad_rest_of_the_body_to_the_model() -> None:
+    good = [{"t": [0.0], "x": [1.0], "y": [1.0]}]
+    for body in (
+        {"trajectories": good, "mode": "sideways"},
+        {"trajectories": good, "trajectory": [{"t": 0.0, "x": 0.0, "y": 0.0}]},
+        {"trajectories": good, "deadline_ms": "5"},
+    ):
+        assert parse_batch_check(json.dumps(body).encode(), CollisionCheckRequest) is None
+    assert parse_batch_check(b'{"trajectories": [{"t": [NaN]', CollisionCheckRequest) is None

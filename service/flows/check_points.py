@@ -48,6 +48,15 @@ class CheckPoints:
     def probe_times(self) -> np.ndarray:
         return self.times if self.cover is None else np.repeat(self.times, self.cover.count)
 
+    @property
+    def probe_starts(self) -> np.ndarray:
+        """Each trajectory's first probe row."""
+        return self.starts if self.cover is None else self.starts * self.cover.count
+
+    def thresholds(self, radii: np.ndarray) -> np.ndarray:
+        """The distance to K below which a probe collides, per agent of R_col ``radii``."""
+        return radii if self.cover is None else radii + self.cover.radius
+
     def point_distances(self, probe_distances: np.ndarray) -> np.ndarray:
         """Distances ``[..., points]`` of each point (its footprint: a lower bound) to the set,
         from those of the probes."""
@@ -102,7 +111,7 @@ def check_points(request: CollisionCheckRequest, limits: RequestLimits) -> Check
     )
 
 
-Columns = tuple[np.ndarray, np.ndarray, np.ndarray, list[float | None] | None]
+Columns = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | list[float | None] | None]
 
 
 def _columns(field: str, part: Any, limits: RequestLimits) -> Columns:
@@ -127,6 +136,8 @@ def _columns(field: str, part: Any, limits: RequestLimits) -> Columns:
 def _headings(field: str, k: int, columns: Columns, batch: bool) -> np.ndarray:
     where = f"{field}.{k}" if batch else field
     heading = columns[3]
+    if isinstance(heading, np.ndarray):
+        return heading
     if heading is None:
         raise FieldError(f"{where}.heading", "a footprint needs a heading at every point")
     missing = [i for i, h in enumerate(heading) if h is None]
@@ -146,29 +157,30 @@ def trajectory_answers(
         return []
     starts = points.starts
     ends = np.append(starts[1:], points.n_points)
-    minimum = np.minimum.reduceat(clearance, starts, axis=1)
+    minimum = np.minimum.reduceat(clearance, starts, axis=1).tolist()
     rows = np.arange(points.n_points)
     first = np.minimum.reduceat(
         np.where(clearance < 0.0, rows[None, :], points.n_points), starts, axis=1
     )
     hit = first < ends[None, :]
-    minimum_rows, first_rows, hit_rows = minimum.tolist(), first.tolist(), hit.tolist()
-    times = points.times.tolist()
-    per_point = clearance.tolist() if include_clearance else None
+    at = np.where(hit, first, 0)
+    index = np.where(hit, at - starts[None, :], -1).tolist()
+    time = points.times[at].tolist()
     answers = []
-    for a in range(clearance.shape[0]):
-        agent = []
-        for k, start in enumerate(starts.tolist()):
-            index = first_rows[a][k] if hit_rows[a][k] else None
-            entry = {
-                "collision": index is not None,
-                "first_collision_index": None if index is None else index - start,
-                "first_collision_time": None if index is None else times[index],
-                "min_clearance": minimum_rows[a][k],
+    for a, hits in enumerate(hit.tolist()):
+        agent = [
+            {
+                "collision": collided,
+                "first_collision_index": k if collided else None,
+                "first_collision_time": t if collided else None,
+                "min_clearance": m,
             }
-            if per_point is not None:
-                entry["clearance"] = per_point[a][start : int(ends[k])]
-            agent.append(entry)
+            for collided, k, t, m in zip(hits, index[a], time[a], minimum[a], strict=True)
+        ]
+        if include_clearance:
+            per_point = clearance[a].tolist()
+            for entry, start, end in zip(agent, starts.tolist(), ends.tolist(), strict=True):
+                entry["clearance"] = per_point[start:end]
         answers.append(agent)
     return answers
 

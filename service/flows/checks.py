@@ -21,11 +21,12 @@ from typing import Any
 
 import numpy as np
 
-from reach.batch import box_clearances, tube_clearances
+from reach.batch import Reduction, box_clearances, trajectory_surrogates_of, tube_clearances
 from reach.sets import BoxTubeSet, FRTSet
 from service.flows.agent_config import AgentConfig
 from service.flows.check_points import CheckPoints, check_points, check_work, trajectory_answers
 from service.flows.confidence import Belief
+from service.runtime.answer_cost import AnswerCosts
 from service.runtime.jobs import FRTJob
 from service.runtime.services import Services
 from service.runtime.settings import Settings
@@ -148,14 +149,16 @@ async def answer_states(
     services.require_engine()
     timeline = _Timeline(arrival, time.perf_counter())
     deadline_ms = request.deadline_ms or services.settings.deadline_ms
-    costs = services.answer_costs
+    costs = services.answer_costs_for(points.batch)
     jobs = [services.job_for(state) for state in states]
-    exact = await _exact_sets_in_time(services, jobs, arrival, deadline_ms)
+    exact = await _exact_sets_in_time(services, costs, jobs, (arrival, deadline_ms))
     not_ready = sum(frt is None for frt in exact)
     found = list(exact)
-    no_time = _answer_in_time(services, exact, arrival, deadline_ms)
+    no_time = _answer_in_time(services, costs, exact, (arrival, deadline_ms))
     xy, times = points.probe_xy, points.probe_times
     t_rel = [times - s.timestamp if request.mode == "time_indexed" else None for s in states]
+    radii = _collision_radii(services.settings, states, request)
+    reduction = _reduction(request, points, radii)
     # Answered on the event loop: cheaper per agent than the thread hop and the GIL hand-offs
     # with the loop that answering in a worker thread cost.
     timeline.waited = time.perf_counter()
@@ -166,23 +169,28 @@ async def answer_states(
     pending = [i for i in chosen if i not in distances]
     drawn_before = services.tubes.spent_s
     coarse = _exact_distances(
-        services, chosen, pending, distances, xy, t_rel, (arrival, deadline_ms, len(states))
+        services,
+        chosen,
+        pending,
+        distances,
+        (xy, t_rel, reduction),
+        (costs, arrival, deadline_ms, len(states)),
     )
     timeline.sets_done = time.perf_counter()
     # Tubes drawn for this check are budgeted on their own (TubeBuilder.cost).
     drawing = services.tubes.spent_s - drawn_before
     costs.exact.record(timeline.sets_done - timeline.boxes_done - drawing, len(pending))
-    results = _respond_all(services, states, exact, request, points, distances, coarse)
-    reasons = services.metrics.conservative_reasons
-    for reason, count in (("not_ready", not_ready), ("no_time", no_time), ("tubes", len(coarse))):
-        if count:
-            reasons.labels(reason).inc(count)
+    results = _respond_all(services, states, exact, request, points, radii, distances, coarse)
+    _count_reasons(services, not_ready=not_ready, no_time=no_time, tubes=len(coarse))
     timeline.done = time.perf_counter()
     costs.response.record(timeline.done - timeline.sets_done, len(states))
     if no_time and not any(frt is not None for frt in exact):
         skipped = next(i for i, frt in enumerate(found) if frt is not None)
         asyncio.get_running_loop().call_soon(
-            _measure_exact_answer, services, found[skipped], xy, t_rel[skipped]
+            _measure_exact_answer,
+            costs,
+            found[skipped],
+            (xy, t_rel[skipped], _for_agent(reduction, skipped)),
         )
     _note_deadline(services, timeline, deadline_ms, len(states), not_ready, no_time)
     return results
@@ -215,13 +223,14 @@ def _note_deadline(
 
 
 async def _exact_sets_in_time(
-    services: Services, jobs: list[FRTJob], arrival: float, deadline_ms: float
+    services: Services, costs: AnswerCosts, jobs: list[FRTJob], deadline: tuple[float, float]
 ) -> list[FRTSet | None]:
     """Each job's exact set if it is cached or lands within the wait budget, else None. The
     budget keeps time to answer every agent once the wait is over: a planner's check of 50 agents
     takes milliseconds to answer, which a wait up to half the deadline would push past it."""
+    arrival, deadline_ms = deadline
     budget = wait_budget_s(arrival, deadline_ms, services.settings)
-    budget -= services.answer_costs.upper_s(len(jobs), 0)
+    budget -= costs.upper_s(len(jobs), 0)
     # Cached sets first, without a task each (a planner's check of 50 agents mostly finds them).
     exact = services.cached_exact(jobs)
     late = [i for i, frt in enumerate(exact) if frt is None]
@@ -258,16 +267,17 @@ def _exact_distances(
     chosen: dict[int, FRTSet],
     pending: list[int],
     distances: dict[int, np.ndarray],
-    xy: np.ndarray,
-    t_rel: list[np.ndarray | None],
-    check: tuple[float, float, int],
+    probes: tuple[np.ndarray, list[np.ndarray | None], Reduction | None],
+    check: tuple[AnswerCosts, float, float, int],
 ) -> set[int]:
     """Clearances of the ``pending`` agents into ``distances``: the sets that measure against
     their tubes (``FRTSet.clearance``) together, in one vectorised call, any other kind alone.
-    ``check`` is (arrival, deadline_ms, number of agents). Returns the agents answered against
-    tubes already drawn that end later than theirs (conservatively)."""
-    arrival, deadline_ms, n_agents = check
-    costs = services.answer_costs
+    ``probes`` is (points, their times after each agent's observation, the batch's reduction);
+    with a reduction, the tube sets' values are its surrogates. ``check`` is (arrival,
+    deadline_ms, number of agents) with the answer costs of its kind. Returns the agents answered against tubes already drawn that
+    end later than theirs (conservatively)."""
+    xy, t_rel, reduction = probes
+    costs, arrival, deadline_ms, n_agents = check
     plain = [i for i in pending if chosen[i].clearance_from_tubes]
     plain_times = {i: t_rel[i] for i in plain}
     coarse = _fit_tubes_to_deadline(
@@ -278,7 +288,14 @@ def _exact_distances(
         deadline_ms,
         costs.exact.upper_s(len(pending)) + costs.response.upper_s(n_agents),
     )
-    together = tube_clearances([chosen[i] for i in plain], xy, [plain_times[i] for i in plain])
+    sets, times = [chosen[i] for i in plain], [plain_times[i] for i in plain]
+    if reduction is None:
+        together = tube_clearances(sets, xy, times)
+    else:
+        thresholds = [reduction.thresholds[i] for i in plain]
+        together = trajectory_surrogates_of(
+            sets, xy, times, Reduction(reduction.starts, thresholds)
+        )
     distances.update(zip(plain, together, strict=True))
     for i in pending:
         if i not in distances:
@@ -303,7 +320,10 @@ def _note_tube_demand(
 
 
 def _answer_in_time(
-    services: Services, exact: list[FRTSet | None], arrival: float, deadline_ms: float
+    services: Services,
+    costs: AnswerCosts,
+    exact: list[FRTSet | None],
+    deadline: tuple[float, float],
 ) -> int:
     """Answer from the conservative sets, which contain the exact ones and cost a fraction to
     measure, the agents whose exact sets there is no time left to answer from (under load,
@@ -312,32 +332,40 @@ def _answer_in_time(
     found = [i for i, frt in enumerate(exact) if frt is not None]
     if not found:
         return 0
+    arrival, deadline_ms = deadline
     left = (
         deadline_ms / 1000.0
         - (time.perf_counter() - arrival)
         - services.settings.deadline_reserve_ms / 1000.0
     )
-    keep = services.answer_costs.exact_agents_within(left, len(found), len(exact))
+    keep = costs.exact_agents_within(left, len(found), len(exact))
     for i in found[keep:]:
         exact[i] = None
     return len(found) - keep
 
 
 def _measure_exact_answer(
-    services: Services, frt: FRTSet, xy: np.ndarray, t_rel: np.ndarray | None
+    costs: AnswerCosts,
+    frt: FRTSet,
+    probes: tuple[np.ndarray, np.ndarray | None, Reduction | None],
 ) -> None:
     """Measure, after a check has answered, what answering it from ``frt`` (an exact set it left
     out for want of time) would have cost, if its tubes are drawn: a check that answers every agent
     conservatively records no exact cost, so an estimate once too high (a first, cold answer; a
     pause under load) would otherwise never come down, and every later check with a short
-    deadline would answer conservatively too."""
+    deadline would answer conservatively too. ``probes``: the check's points, their times after
+    the agent's observation and the batch's reduction (for this agent alone)."""
+    xy, t_rel, reduction = probes
     if not frt.clearance_from_tubes:
         return
     if t_rel is not None and frt.missing_tubes(frt.tube_indices(t_rel).tolist()):
         return  # drawing tubes is the tube builder's to time (service.runtime.tube_builder)
     start = time.perf_counter()
-    tube_clearances([frt], xy, [t_rel])
-    services.answer_costs.exact.record(time.perf_counter() - start, 1)
+    if reduction is None:
+        tube_clearances([frt], xy, [t_rel])
+    else:
+        trajectory_surrogates_of([frt], xy, [t_rel], reduction)
+    costs.exact.record(time.perf_counter() - start, 1)
 
 
 def _fit_tubes_to_deadline(
@@ -360,7 +388,7 @@ def _fit_tubes_to_deadline(
         times = t_rel[i]
         if times is None:
             continue
-        needed = frt.tube_indices(times).tolist()
+        needed = np.unique(frt.tube_indices(times)).tolist()
         missing = frt.missing_tubes(needed)
         if not missing:
             continue
@@ -370,6 +398,28 @@ def _fit_tubes_to_deadline(
             t_rel[i] = within_built_tubes(frt, times)
             services.tubes.later(frt, frt.missing_tubes(missing))
     return coarse
+
+
+def _count_reasons(services: Services, **counts: int) -> None:
+    """Count the agents answered conservatively, by reason."""
+    for reason, count in counts.items():
+        if count:
+            services.metrics.conservative_reasons.labels(reason).inc(count)
+
+
+def _for_agent(reduction: Reduction | None, i: int) -> Reduction | None:
+    """``reduction`` with agent i's threshold alone."""
+    return None if reduction is None else Reduction(reduction.starts, [reduction.thresholds[i]])
+
+
+def _reduction(
+    request: CollisionCheckRequest, points: CheckPoints, radii: np.ndarray
+) -> Reduction | None:
+    """What a batch's answers read of the distances: per trajectory only the least clearance and
+    the first collision (None: every point's clearance is answered)."""
+    if not points.batch or request.include_clearance:
+        return None
+    return Reduction(points.probe_starts, points.thresholds(radii).tolist())
 
 
 def _collision_radii(
@@ -405,6 +455,7 @@ def _respond_all(
     exact: Sequence[FRTSet | None],
     request: CollisionCheckRequest,
     points: CheckPoints,
+    radii: np.ndarray,
     distances: dict[int, np.ndarray],
     coarse: set[int],
 ) -> list[CollisionCheckResponse]:
@@ -413,7 +464,6 @@ def _respond_all(
     checked with later tubes than the points' own (conservative)."""
     if not states:
         return []
-    radii = _collision_radii(services.settings, states, request)
     probed = np.stack([np.asarray(distances[i], dtype=np.float64) for i in range(len(states))])
     clearance, first = clearance_rows(points.point_distances(probed), radii)
     if points.batch:

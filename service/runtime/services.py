@@ -55,8 +55,11 @@ class Services:
     model_name: str | None = None
     model_error: str | None = "model is loading"
     _loader: asyncio.Task[None] | None = field(default=None, repr=False)
-    #: What answering a collision check costs per agent once its sets are known.
+    #: What answering a collision check costs per agent once its sets are known: a check of one
+    #: trajectory, and a batch of trajectories (a planner sends batches of one size each cycle,
+    #: each costing many single checks).
     answer_costs: AnswerCosts = field(default_factory=AnswerCosts, repr=False)
+    batch_answer_costs: AnswerCosts = field(default_factory=AnswerCosts, repr=False)
     #: Draws the tubes time-indexed checks need, now or between requests.
     tubes: TubeBuilder = field(default_factory=TubeBuilder, repr=False)
     #: Holds observations' numerical work back while collision checks are in flight.
@@ -125,6 +128,10 @@ class Services:
         if self.card is None:
             raise ServiceUnavailableError(self.model_error or "model not loaded")
         return self.card
+
+    def answer_costs_for(self, batch: bool) -> AnswerCosts:
+        """The answer costs of single checks, or of batch checks."""
+        return self.batch_answer_costs if batch else self.answer_costs
 
     def require_engine(self) -> FRTEngine:
         if self.engine is None:

@@ -95,5 +95,6 @@ class TubeBuilder:
 def within_built_tubes(frt: FRTSet, t_rel: np.ndarray) -> np.ndarray:
     """Times that put each point in the smallest tube already drawn that ends no earlier than its
     own (a superset of its own tube)."""
-    indices = [frt.nearest_built_tube(j) for j in frt.tube_indices(t_rel).tolist()]
-    return np.array(indices, dtype=np.float64) * frt.slice_dt
+    tubes, rows = np.unique(frt.tube_indices(t_rel), return_inverse=True)
+    built = np.array([frt.nearest_built_tube(j) for j in tubes.tolist()], dtype=np.float64)
+    return built[rows] * frt.slice_dt

@@ -12,6 +12,7 @@ from service.api.routes.json_body import body_openapi, json_body
 from service.api.routes.model_json import ModelJSONResponse
 from service.api.routes.params import AgentIdPath, ServicesDep
 from service.flows import checks
+from service.wire.batch_body import parse_batch_check
 from service.wire.schemas import (
     CollisionCheckRequest,
     CollisionCheckResponse,
@@ -21,8 +22,12 @@ from service.wire.schemas import (
 
 router = APIRouter(prefix="/v1", tags=["collision"])
 
-OneAgentCheck = Annotated[CollisionCheckRequest, json_body(CollisionCheckRequest)]
-ManyAgentsCheck = Annotated[MultiCollisionCheckRequest, json_body(MultiCollisionCheckRequest)]
+OneAgentCheck = Annotated[
+    CollisionCheckRequest, json_body(CollisionCheckRequest, parse_batch_check)
+]
+ManyAgentsCheck = Annotated[
+    MultiCollisionCheckRequest, json_body(MultiCollisionCheckRequest, parse_batch_check)
+]
 
 
 @router.post(

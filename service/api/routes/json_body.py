@@ -9,6 +9,7 @@ take large bodies declare them with :func:`json_body` instead; the errors are Fa
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any, TypeVar
 
 from fastapi import Depends, Request
@@ -21,11 +22,14 @@ M = TypeVar("M", bound=BaseModel)
 _BODY_MODELS: dict[str, type[BaseModel]] = {}
 
 
-def json_body(model: type[M]) -> Any:
-    """A dependency that parses the request body as ``model``."""
+def json_body(model: type[M], bulk: Callable[[bytes, type[M]], M | None] | None = None) -> Any:
+    """A dependency that parses the request body as ``model``; first by ``bulk``, where given
+    (a parser that returns None for a body it does not take)."""
 
     async def parse(request: Request) -> M:
         raw = await request.body()
+        if bulk is not None and (parsed := bulk(raw, model)) is not None:
+            return parsed
         try:
             return model.model_validate_json(raw)
         except ValidationError as exc:

@@ -5,16 +5,39 @@ through ``jsonable_encoder`` and ``json.dumps``, on the event loop: for a 50-age
 ten times what ``model_dump_json`` costs (``make bench``, case ``serialise_50_agents``). The hot
 routes return this instead and keep ``response_model`` for the OpenAPI schema; their models are
 built by the engine, already valid.
+
+A batch check's answers (``trajectories``: thousands of plain dicts per agent) are written by
+orjson, the rest of each answer by the model, into the same JSON.
 """
 
 from __future__ import annotations
 
+from typing import Any
+
+import orjson
 from pydantic import BaseModel
 from starlette.responses import Response
+
+from service.wire.schemas import CollisionCheckResponse, MultiCollisionCheckResponse
 
 
 class ModelJSONResponse(Response):
     media_type = "application/json"
 
     def render(self, content: BaseModel) -> bytes:
+        if isinstance(content, CollisionCheckResponse) and content.trajectories is not None:
+            return orjson.dumps(_batch_answer(content))
+        if isinstance(content, MultiCollisionCheckResponse) and any(
+            r.trajectories is not None for r in content.results
+        ):
+            data = content.model_dump(mode="json", exclude={"results"})
+            data["results"] = [_batch_answer(r) for r in content.results]
+            return orjson.dumps(data)
         return content.model_dump_json().encode()
+
+
+def _batch_answer(answer: CollisionCheckResponse) -> dict[str, Any]:
+    """The answer as the model dumps it, its ``trajectories`` as they are (plain dicts)."""
+    data = answer.model_dump(mode="json", exclude={"trajectories"})
+    data["trajectories"] = answer.trajectories
+    return data

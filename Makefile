@@ -18,7 +18,7 @@ TARGET ?= 0.99
 PROFILE ?= av2
 FIND_LINKS := $(if $(wildcard /opt/wheels),--find-links /opt/wheels,)
 
-.PHONY: venv serve demo viewer-screenshot test lint format train train-smoke evaluate evaluate-full compare-authors network-diagnostics bench bench-sustained bench-audit load load-scale profile-load scale-test scenarios calibrate rescue plots clean
+.PHONY: venv serve demo viewer-screenshot test lint format train train-smoke evaluate evaluate-full compare-authors network-diagnostics bench bench-batch bench-sustained bench-audit adapter-error load load-scale profile-load scale-test scenarios calibrate rescue plots clean
 
 $(RUNTIME): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -89,6 +89,15 @@ network-diagnostics: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python scripts/bench.py --model $(MODEL)
+
+# One batch of 500 candidate trajectories x 30 points against 10 agents, beside the same candidates
+# checked one by one (results/bench_batch.json).
+bench-batch: $(STAMP)
+	$(BIN)/python scripts/bench_batch.py --model $(MODEL)
+
+# The SDK adapters' control recovery replayed on the recorded tracks (results/adapter_error.json).
+adapter-error: $(STAMP)
+	$(BIN)/python scripts/adapter_error.py
 
 bench-sustained: $(STAMP)
 	$(BIN)/python scripts/bench.py --model $(MODEL) --sustained-only --sustained-runs 5 \

@@ -44,7 +44,7 @@ from reach.sets import FRTSet
 
 #: Each half of a cut part reaches this far past the cutting line (m).
 CUT_OVERLAP_M = 1e-6
-#: Every b is moved outwards by this much in the world frame (m).
+#: Every b is moved outwards by this much in the set's frame and again in the world frame (m).
 ROUND_OUT_M = 1e-6
 #: Normals closer than this (rad) are one normal: the pieces' corners stay well conditioned.
 SAME_NORMAL_RAD = 1e-6
@@ -82,13 +82,18 @@ class ConvexPiece:
 
     def in_world(self, pose: Pose) -> ConvexPiece:
         """The piece in the world frame (p_world = R p + (x, y)): n_w = R n, b_w = b + n_w·(x, y),
-        each b then moved out by ``ROUND_OUT_M``."""
+        each b then moved out by ``ROUND_OUT_M``. Each corner moves with its two lines: by
+        ε (n_i + n_(i+1)) / (1 + n_i·n_(i+1)), which meets both moved lines, computed from the
+        moved corner rather than by intersecting lines far from the origin."""
         c, s = math.cos(pose.heading), math.sin(pose.heading)
         rotation = np.array([[c, -s], [s, c]])
         shift = np.array([pose.x, pose.y])
         normals = self.normals @ rotation.T
         offsets = self.offsets + normals @ shift + ROUND_OUT_M
-        return ConvexPiece(normals, offsets, self.corners @ rotation.T + shift)
+        following = np.roll(normals, -1, axis=0)
+        cosine = np.sum(normals * following, axis=1, keepdims=True)
+        out = ROUND_OUT_M * (normals + following) / (1.0 + cosine)
+        return ConvexPiece(normals, offsets, self.corners @ rotation.T + shift + out)
 
 
 def slice_pieces(
@@ -209,7 +214,7 @@ def _best_cut(
     upper = _bands(d, w, c - CUT_OVERLAP_M, np.broadcast_to(hi[:, None] + 1.0, shape), reach)
     below, above = shapely.intersection(part, lower), shapely.intersection(part, upper)
     cost = _c_areas(below, radius) + _c_areas(above, radius)
-    cost[shapely.is_empty(below) | shapely.is_empty(above)] = np.inf
+    cost[(shapely.area(below) <= 0.0) | (shapely.area(above) <= 0.0)] = np.inf  # no cut
     k = int(np.argmin(cost))
     gain = whole - float(cost[k])
     if not gain > MIN_CUT_GAIN * whole:

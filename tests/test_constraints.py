@@ -134,6 +134,11 @@ def test_the_pieces_contain_c_of_random_shapes(seed: int) -> None:
     pose = Pose(*rng.uniform(-1e5, 1e5, 2), rng.uniform(-10.0, 10.0))
     world = [piece.in_world(pose) for piece in pieces]
     assert len(outside(world, to_world(points, pose))) == 0
+    for piece in pieces + world:  # corner i on the lines of sides i and i + 1
+        on_side = np.sum(piece.corners * piece.normals, axis=1) - piece.offsets
+        following = np.roll(piece.normals, -1, axis=0)
+        on_next = np.sum(piece.corners * following, axis=1) - np.roll(piece.offsets, -1)
+        assert np.abs(on_side).max() < 1e-6 and np.abs(on_next).max() < 1e-6
 
 
 def test_a_convex_set_is_one_tight_piece_and_a_triangle_still_holds_it() -> None:

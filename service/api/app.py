@@ -14,6 +14,7 @@ from service.api.middleware import BodySizeLimitMiddleware, RequestContextMiddle
 from service.api.routes import (
     agents,
     collision,
+    constraints,
     contours,
     frames,
     health,
@@ -75,7 +76,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     app.include_router(health.router)
     checked = [Depends(bearer_scheme), Depends(query_parameters_checked)]
-    for router in (agents, frames, collision, contours, stateless, model):
+    for router in (agents, frames, collision, contours, constraints, stateless, model):
         app.include_router(router.router, dependencies=checked)
     app.include_router(stream.router)
     if settings.viewer:

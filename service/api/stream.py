@@ -9,6 +9,8 @@ body, plus ``agent_id`` where the HTTP path has one:
   (``agent_ids`` or all);
 - ``frt``: ``agent_id`` + ``slices``, ``include``, ``tube``, ``collision_radius`` (the agent's
   contours); without ``agent_id``, the stateless ``POST /v1/frt`` body;
+- ``constraints``: ``agent_id`` + ``slices``, ``max_sides``, ``max_pieces``, ``collision_radius``
+  (``GET /v1/agents/{agent_id}/constraints``);
 - ``get_agent``, ``delete_agent``: ``agent_id``;
 - ``list_agents``: no fields; ``{"agents": [...], "total": n, "truncated": bool, "checks": [...]}``,
   each agent as ``get_agent`` answers it, sorted by id, at most ``max_agents_per_check`` of them,
@@ -32,12 +34,13 @@ from typing import Any
 from pydantic import BaseModel, TypeAdapter, ValidationError
 
 from service.api import recent_checks
-from service.flows import agents, checks, contours, frames, stateless
+from service.flows import agents, checks, constraints, contours, frames, stateless
 from service.runtime.services import Services
 from service.wire.errors import AgentNotFoundError, APIError, validation_payload
 from service.wire.schemas import (
     AgentId,
     CollisionCheckRequest,
+    ConstraintQuery,
     ContourQuery,
     FrameRequest,
     FRTRequest,
@@ -104,6 +107,13 @@ async def _frt(services: Services, msg: dict[str, Any], arrival: float) -> BaseM
     return await contours.agent_contours(services, agent_id, query, radius, location="")
 
 
+async def _constraints(services: Services, msg: dict[str, Any], arrival: float) -> BaseModel:
+    agent_id = _pop_agent_id(msg, required=True)
+    assert agent_id is not None
+    query = ConstraintQuery.model_validate(msg)
+    return await constraints.agent_constraints(services, agent_id, query, location="")
+
+
 def _no_other_fields(msg: dict[str, Any]) -> None:
     """422 naming the first field an op without a body does not know (HTTP bodies forbid them)."""
     if msg:
@@ -148,6 +158,7 @@ OPS: dict[str, Handler] = {
     "frame": _frame,
     "collision_check": _collision_check,
     "frt": _frt,
+    "constraints": _constraints,
     "get_agent": _get_agent,
     "delete_agent": _delete_agent,
     "list_agents": _list_agents,

@@ -1,34 +1,57 @@
-"""Contours of K and C as GeoJSON in the world frame: the whole-horizon tube and time slices."""
+"""Contours of K and C as GeoJSON in the world frame: the whole-horizon tube and time slices.
+
+Also the steps every read of one agent's set shares (:func:`parse_times`, :func:`query_model`,
+:func:`agent_set`), which ``service.flows.constraints`` reads its set with too.
+"""
 
 from __future__ import annotations
 
-from pydantic import ValidationError
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, TypeVar
+
+from pydantic import BaseModel, ValidationError
 from starlette.concurrency import run_in_threadpool
 
 from reach.sets import FRTSet
 from service.flows.agent_config import AgentConfig
 from service.runtime.services import Services
+from service.runtime.stores import AgentState
 from service.wire.errors import AgentNotFoundError, FieldError, dotted
 from service.wire.limits import check_slices
 from service.wire.schemas import ContourPair, ContourQuery, Contours, ContourSlice, ContoursResponse
 
+M = TypeVar("M", bound=BaseModel)
 
-def parse_query(slices: str | None, include: str | None, tube: bool) -> ContourQuery:
-    """``slices=1.0,2.0&include=K,C`` as a :class:`ContourQuery` (422 on the query parameter)."""
+
+def parse_times(slices: str | None) -> list[float]:
+    """``slices=1.0,2.0`` as numbers (422 naming ``slices.i``, in the query, if one is not)."""
     times: list[float] = []
     for i, text in enumerate(s for s in (slices or "").split(",") if s.strip()):
         try:
             times.append(float(text))
         except ValueError:
             raise FieldError(f"slices.{i}", f"not a number: {text!r}", location="query") from None
+    return times
+
+
+def query_model(model: type[M], **fields: Any) -> M:
+    """``model`` of query parameters; its validation error (nan, inf, too many slices, ...) is the
+    query's 422 naming the field."""
+    try:
+        return model(**fields)
+    except ValidationError as exc:
+        error = exc.errors()[0]
+        raise FieldError(dotted(error["loc"]), error["msg"], location="query") from None
+
+
+def parse_query(slices: str | None, include: str | None, tube: bool) -> ContourQuery:
+    """``slices=1.0,2.0&include=K,C`` as a :class:`ContourQuery` (422 on the query parameter)."""
+    times = parse_times(slices)
     parts = [p.strip() for p in (include if include is not None else "K,C").split(",") if p.strip()]
     if not parts or any(p not in ("K", "C") for p in parts):
         raise FieldError("include", "a comma-separated subset of K,C", location="query")
-    try:
-        return ContourQuery(slices=times, include=list(dict.fromkeys(parts)), tube=tube)  # type: ignore[arg-type]
-    except ValidationError as exc:  # e.g. nan, inf or too many slices: the query's fault
-        error = exc.errors()[0]
-        raise FieldError(dotted(error["loc"]), error["msg"], location="query") from None
+    return query_model(ContourQuery, slices=times, include=list(dict.fromkeys(parts)), tube=tube)
 
 
 def build(frt: FRTSet, query: ContourQuery, collision_radius: float, t_origin: float) -> Contours:
@@ -45,18 +68,39 @@ def build(frt: FRTSet, query: ContourQuery, collision_radius: float, t_origin: f
     return Contours(tube=tube, slices=slices)
 
 
-async def agent_contours(
+@dataclass(frozen=True)
+class AgentSet:
+    """One agent's current version to answer from: its state, the R_col of C, the horizon, and
+    the exact set if it was ready in time (else :meth:`frt` builds the conservative one)."""
+
+    state: AgentState
+    collision_radius: float
+    horizon_s: float
+    exact: FRTSet | None
+    conservative: Callable[[], FRTSet]
+
+    def frt(self) -> tuple[FRTSet, bool]:
+        """(the set, whether it is the conservative one); blocking, call from a thread."""
+        if self.exact is not None:
+            return self.exact, False
+        return self.conservative(), True
+
+
+async def agent_set(
     services: Services,
     agent_id: str,
-    query: ContourQuery,
-    collision_radius: float | None = None,
+    slices: list[float],
+    collision_radius: float | None,
     location: str = "query",
-) -> ContoursResponse:
+) -> AgentSet:
+    """The agent's set once ``slices`` are checked against the horizon and the server's limit
+    (422 naming ``slices.i`` at ``location``): exact if ready within ``FRT_EXACT_TIMEOUT_S``;
+    404 for an unknown agent, 503 before the model is loaded. Changes nothing."""
     settings = services.settings
     services.require_engine()
     horizon = services.horizon_s()
     try:
-        check_slices("slices", query.slices, horizon, settings)
+        check_slices("slices", slices, horizon, settings)
     except FieldError as exc:
         exc.location = location
         raise
@@ -68,10 +112,22 @@ async def agent_contours(
         radius = float(AgentConfig.of(settings, state.config).collision_radius)
     job = services.job_for(state)
     exact = await services.exact_within(job, settings.exact_timeout_s)
+    return AgentSet(state, radius, horizon, exact, lambda: services.conservative(job))
+
+
+async def agent_contours(
+    services: Services,
+    agent_id: str,
+    query: ContourQuery,
+    collision_radius: float | None = None,
+    location: str = "query",
+) -> ContoursResponse:
+    served = await agent_set(services, agent_id, query.slices, collision_radius, location)
+    state, radius = served.state, served.collision_radius
 
     def compute() -> tuple[Contours, bool]:
-        frt = exact if exact is not None else services.conservative(job)
-        return build(frt, query, radius, state.timestamp), exact is None
+        frt, conservative = served.frt()
+        return build(frt, query, radius, state.timestamp), conservative
 
     contours, conservative = await run_in_threadpool(compute)
     return ContoursResponse(
@@ -79,7 +135,7 @@ async def agent_contours(
         agent_id=agent_id,
         frt_version=state.frt_version,
         timestamp=state.timestamp,
-        horizon_s=horizon,
+        horizon_s=served.horizon_s,
         collision_radius=radius,
         conservative=conservative,
     )

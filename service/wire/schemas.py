@@ -22,6 +22,7 @@ from pydantic import (
 )
 from typing_extensions import TypedDict
 
+from reach.constraints import DEFAULT_PIECES, DEFAULT_SIDES, PIECES_RANGE, SIDES_RANGE
 from reach.contract import BOUND_COLUMNS
 
 #: Hard caps on array lengths (the settings may only lower them).
@@ -609,6 +610,59 @@ class ContoursResponse(Contours):
     horizon_s: float
     collision_radius: float
     conservative: bool
+
+
+# ---------------------------------------------------------------------------------- constraints
+
+
+class ConstraintQuery(Request):
+    """Which constraints: the times, and how many pieces of how many sides each at most."""
+
+    slices: list[float] = Field(
+        min_length=1,
+        max_length=SLICES_CAP,
+        description="seconds after the observation, each in [0, horizon]; the set at each time "
+        "as the contours' slices have it",
+    )
+    max_sides: int = Field(
+        DEFAULT_SIDES, ge=SIDES_RANGE[0], le=SIDES_RANGE[1], description="sides of a piece at most"
+    )
+    max_pieces: int = Field(
+        DEFAULT_PIECES,
+        ge=PIECES_RANGE[0],
+        le=PIECES_RANGE[1],
+        description="pieces per time at most",
+    )
+    collision_radius: Radius | None = Field(None, description="default: the agent's R_col")
+
+
+class ConstraintPiece(Response):
+    """The convex polygon {x : A x <= b} in the world frame."""
+
+    A: list[list[float]] = Field(description="one unit outward normal [a_x, a_y] per side")
+    b: list[float] = Field(description="one offset per side (metres)")
+    vertices: list[list[float]] = Field(
+        description="the corners [x, y], counter-clockwise, corner i where side i's line meets "
+        "side i + 1's (for drawing: A x <= b is the piece)"
+    )
+
+
+class ConstraintSlice(Response):
+    t: float = Field(description="seconds after the observation")
+    time: float = Field(description="on the observations' clock")
+    pieces: list[ConstraintPiece] = Field(description="their union contains C at this time")
+
+
+class ConstraintsResponse(Response):
+    agent_id: str
+    frt_version: int
+    timestamp: float
+    horizon_s: float
+    collision_radius: float
+    conservative: bool
+    max_sides: int
+    max_pieces: int
+    slices: list[ConstraintSlice]
 
 
 # ------------------------------------------------------------------------------- stateless FRT

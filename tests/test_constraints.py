@@ -19,6 +19,7 @@ from its vertices) over the area of C's polygon, which lies inside the true C.
 
 from __future__ import annotations
 
+import asyncio
 import math
 import uuid
 
@@ -26,6 +27,7 @@ import httpx
 import numpy as np
 import pytest
 import shapely
+from frt_client import AgentConstraints, AsyncFRTClient, FRTClient, NotFoundError, ValidationError
 from shapely.affinity import rotate
 from shapely.geometry import Point, Polygon, box, shape
 
@@ -493,3 +495,39 @@ def test_bad_input_is_a_422_naming_the_field_and_changes_nothing(
         assert http.get("/v1/agents/bad id/constraints", params={"slices": "1"}).status_code == 422
         assert http.get(f"/v1/agents/{agent}").json() == before
         assert constraints(http, agent, slices="1.0,2.0") == good
+
+
+def test_the_sdk_and_the_stream_answer_as_http_does(live_server: LiveServer, agent: str) -> None:
+    params = {"slices": "0.5,1.25,3.0", "max_sides": 8, "max_pieces": 2, "collision_radius": 2.0}
+    with httpx.Client(base_url=live_server.url, timeout=30.0) as http:
+        expected = AgentConstraints.model_validate(constraints(http, agent, **params))
+    assert expected.max_sides == 8 and expected.max_pieces == 2
+    assert expected.collision_radius == 2.0
+    assert all(len(p.A) <= 8 for s in expected.slices for p in s.pieces)
+    kwargs = {"slices": [0.5, 1.25, 3.0], "max_sides": 8, "max_pieces": 2, "collision_radius": 2.0}
+    with FRTClient(live_server.url) as client:
+        assert client.constraints(agent, **kwargs) == expected
+        with client.stream(timeout=10.0) as stream:
+            assert stream.constraints(agent, **kwargs) == expected
+            with pytest.raises(ValidationError) as bad:
+                stream.constraints(agent, slices=[1.0], max_sides=2)
+            assert bad.value.field == "max_sides"
+            with pytest.raises(ValidationError) as bad:
+                stream.constraints(agent, slices=[9.0])
+            assert bad.value.field == "slices.0"
+            with pytest.raises(NotFoundError):
+                stream.constraints("nobody", slices=[1.0])
+        with pytest.raises(ValidationError) as bad:
+            client.constraints(agent, slices=[1.0], max_pieces=0)
+        assert bad.value.field == "max_pieces"
+
+    async def twins() -> list[AgentConstraints]:
+        async with AsyncFRTClient(live_server.url) as client:
+            over_http = await client.constraints(agent, **kwargs)
+            async with client.stream(timeout=10.0) as stream:
+                return [over_http, await stream.constraints(agent, **kwargs)]
+
+    assert asyncio.run(twins()) == [expected, expected]
+    slice_ = expected.slices[1]
+    centre = np.mean(slice_.pieces[0].vertices, axis=0)
+    assert slice_.contains(*centre) and not slice_.contains(1e6, 1e6)

@@ -17,6 +17,7 @@ from frt_client import inputs
 from frt_client.errors import ValidationError
 from frt_client.models import (
     Agent,
+    AgentConstraints,
     AgentContours,
     CollisionCheck,
     DeleteResult,
@@ -239,6 +240,38 @@ def contours(
         params=params,
         op="frt",
         message=message,
+    )
+
+
+def constraints(
+    agent_id: str,
+    *,
+    slices: Iterable[float],
+    collision_radius: float | None = None,
+    max_sides: int | None = None,
+    max_pieces: int | None = None,
+) -> Call[AgentConstraints]:
+    times = [float(t) for t in inputs.plain(slices)]
+    fields = inputs.without_none(
+        {
+            "slices": times,
+            "collision_radius": None if collision_radius is None else float(collision_radius),
+            "max_sides": inputs.plain(max_sides),
+            "max_pieces": inputs.plain(max_pieces),
+        }
+    )
+    params = {
+        key: ",".join(repr(t) for t in value) if key == "slices" else repr(value)
+        for key, value in fields.items()
+    }
+    return Call(
+        "GET",
+        _agent_path(agent_id, "/constraints"),
+        AgentConstraints,
+        idempotent=True,
+        params=params,
+        op="constraints",
+        message={"agent_id": agent_id, **fields},
     )
 
 

@@ -269,6 +269,52 @@ class AgentContours(ContourSet):
     conservative: bool
 
 
+class ConstraintPiece(Response):
+    """One convex piece {x : A x <= b} in the world frame."""
+
+    #: One unit outward normal ``[a_x, a_y]`` per side.
+    A: list[list[float]]
+    #: One offset per side (metres).
+    b: list[float]
+    #: The corners ``[x, y]``, counter-clockwise (for drawing: ``A x <= b`` is the piece).
+    vertices: list[list[float]] = Field(default_factory=list)
+
+    def contains(self, x: float, y: float, tolerance: float = 0.0) -> bool:
+        """Whether (x, y) meets every side (within ``tolerance`` metres)."""
+        return all(
+            a[0] * x + a[1] * y <= b + tolerance for a, b in zip(self.A, self.b, strict=True)
+        )
+
+
+class ConstraintSlice(Response):
+    #: Seconds after the observation.
+    t: float
+    #: The same instant on the observations' clock.
+    time: float | None = None
+    #: Convex pieces whose union contains C at this time.
+    pieces: list[ConstraintPiece] = Field(default_factory=list)
+
+    def contains(self, x: float, y: float, tolerance: float = 0.0) -> bool:
+        """Whether (x, y) lies in some piece: False means it is outside C at this time."""
+        return any(piece.contains(x, y, tolerance) for piece in self.pieces)
+
+
+class AgentConstraints(Response):
+    """Answer to :meth:`FRTClient.constraints`: per requested time, convex pieces in the world
+    frame whose union contains C = K ⊕ R_col of one agent."""
+
+    agent_id: str
+    frt_version: int
+    timestamp: float
+    horizon_s: float
+    collision_radius: float
+    #: True when built from a set containing the exact one (the exact set was not ready in time).
+    conservative: bool
+    max_sides: int
+    max_pieces: int
+    slices: list[ConstraintSlice]
+
+
 class FRTResult(Response):
     """Answer to the stateless :meth:`FRTClient.frt`."""
 

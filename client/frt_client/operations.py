@@ -15,6 +15,7 @@ from frt_client import calls
 from frt_client.calls import Call
 from frt_client.models import (
     Agent,
+    AgentConstraints,
     AgentContours,
     CollisionCheck,
     DeleteResult,
@@ -188,6 +189,34 @@ class Operations:
                 include=include,
                 tube=tube,
                 collision_radius=collision_radius,
+            )
+        )
+
+    def constraints(
+        self,
+        agent_id: str,
+        *,
+        slices: Iterable[float],
+        collision_radius: float | None = None,
+        max_sides: int | None = None,
+        max_pieces: int | None = None,
+    ) -> AgentConstraints:
+        """Per time, convex pieces ``{x : A x <= b}`` in the world frame whose union contains
+        the agent's C = K ⊕ R_col at that time: constraints for a planner's MPC.
+
+        Args:
+            slices: seconds after the last observation, each in ``[0, horizon]``.
+            collision_radius: R_col of C (default: the agent's).
+            max_sides: sides of one piece at most (3 to 64; default 16).
+            max_pieces: pieces of one time at most (1 to 16; default 4).
+        """
+        return self.send(
+            calls.constraints(
+                agent_id,
+                slices=slices,
+                collision_radius=collision_radius,
+                max_sides=max_sides,
+                max_pieces=max_pieces,
             )
         )
 
@@ -386,6 +415,34 @@ class AsyncOperations:
                 include=include,
                 tube=tube,
                 collision_radius=collision_radius,
+            )
+        )
+
+    async def constraints(
+        self,
+        agent_id: str,
+        *,
+        slices: Iterable[float],
+        collision_radius: float | None = None,
+        max_sides: int | None = None,
+        max_pieces: int | None = None,
+    ) -> AgentConstraints:
+        """Per time, convex pieces ``{x : A x <= b}`` in the world frame whose union contains
+        the agent's C = K ⊕ R_col at that time: constraints for a planner's MPC.
+
+        Args:
+            slices: seconds after the last observation, each in ``[0, horizon]``.
+            collision_radius: R_col of C (default: the agent's).
+            max_sides: sides of one piece at most (3 to 64; default 16).
+            max_pieces: pieces of one time at most (1 to 16; default 4).
+        """
+        return await self.send(
+            calls.constraints(
+                agent_id,
+                slices=slices,
+                collision_radius=collision_radius,
+                max_sides=max_sides,
+                max_pieces=max_pieces,
             )
         )
 

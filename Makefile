@@ -89,6 +89,7 @@ network-diagnostics: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python scripts/bench.py --model $(MODEL)
+	$(BIN)/python scripts/bench_batch.py --model $(MODEL)
 
 # One batch of 500 candidate trajectories x 30 points against 10 agents, beside the same candidates
 # checked one by one (results/bench_batch.json).

@@ -96,10 +96,8 @@ def trajectory_surrogates_of(
     out = []
     for a, (frt, t) in enumerate(zip(sets, t_rel, strict=True)):
         index = np.full(n, frt.n_slices - 1) if t is None else frt.tube_indices(t)
-        present = np.zeros(frt.n_slices, dtype=bool)
-        present[index] = True
-        which = (np.cumsum(present) - 1)[index]  # each point's place among the tubes present
-        packed = frt.packed_tubes(tuple(np.flatnonzero(present).tolist()))
+        tubes, which = frt.tubes_present(index)
+        packed = frt.packed_tubes(tuple(tubes.tolist()))
         out.append(
             trajectory_surrogates(
                 packed,

@@ -224,6 +224,42 @@ def _all_signed(segments, segment_starts, chunk_boxes, chunk_starts, xs, ys, whi
         )
 
 
+#: Trajectories up to this long find their next point by a scan, longer ones sort their bounds.
+SCAN_POINTS = 64
+
+
+@numba.njit(cache=True)
+def _least_by_bounds(  # noqa: ANN001, ANN202
+    segments, segment_starts, chunk_boxes, chunk_starts, xs, ys, which, a, b, exact, out
+):
+    """The least signed distance of points ``a:b`` whose lower bounds are in ``out``: points
+    evaluated (``exact``, ``out``) in increasing order of their bounds until the next bound is no
+    less than the least distance found."""
+    least = np.inf
+    if b - a > SCAN_POINTS:
+        order = np.argsort(out[a:b]) + a
+    else:
+        order = np.empty(0, dtype=np.int64)
+    for r in range(b - a):
+        if len(order):
+            i = order[r]
+        else:  # the unevaluated point of least bound
+            i, bound = -1, np.inf
+            for j in range(a, b):
+                if not exact[j] and out[j] < bound:
+                    i, bound = j, out[j]
+            if i < 0:
+                break
+        if out[i] >= least:
+            break
+        out[i] = _signed(
+            segments, segment_starts, chunk_boxes, chunk_starts, which[i], xs[i], ys[i]
+        )
+        exact[i] = True
+        least = min(least, out[i])
+    return least
+
+
 @numba.njit(cache=True)
 def _surrogates(
     segments,
@@ -244,17 +280,9 @@ def _surrogates(
         a, b = begins[k], ends[k]
         for i in range(a, b):
             out[i] = _box_bound(boxes[which[i]], xs[i], ys[i])
-        order = np.argsort(out[a:b])
-        least = np.inf
-        for r in range(b - a):
-            i = a + order[r]
-            if out[i] >= least:
-                break
-            out[i] = _signed(
-                segments, segment_starts, chunk_boxes, chunk_starts, which[i], xs[i], ys[i]
-            )
-            exact[i] = True
-            least = min(least, out[i])
+        least = _least_by_bounds(
+            segments, segment_starts, chunk_boxes, chunk_starts, xs, ys, which, a, b, exact, out
+        )
         if least >= threshold:
             continue
         for i in range(a, b):

@@ -82,6 +82,13 @@ class FRTSet:
         t = np.clip(np.asarray(t_rel, dtype=np.float64).reshape(-1), 0.0, self.horizon_s)
         return np.minimum(np.ceil(t / self.slice_dt - 1e-9), self.n_slices - 1).astype(int)
 
+    def tubes_present(self, indices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The distinct tube indices among ``indices`` (increasing) and each index's place among
+        them: ``np.unique(indices, return_inverse=True)`` in one pass (the indices are bounded)."""
+        present = np.zeros(self.n_slices, dtype=bool)
+        present[indices] = True
+        return np.flatnonzero(present), (np.cumsum(present) - 1)[indices]
+
     def clearance(self, xy_world: np.ndarray, t_rel: np.ndarray | None = None) -> np.ndarray:
         """Signed distance (m) from each world point to K (negative inside).
 

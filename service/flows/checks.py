@@ -388,7 +388,7 @@ def _fit_tubes_to_deadline(
         times = t_rel[i]
         if times is None:
             continue
-        needed = np.unique(frt.tube_indices(times)).tolist()
+        needed = frt.tubes_present(frt.tube_indices(times))[0].tolist()
         missing = frt.missing_tubes(needed)
         if not missing:
             continue

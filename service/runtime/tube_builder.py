@@ -95,6 +95,6 @@ class TubeBuilder:
 def within_built_tubes(frt: FRTSet, t_rel: np.ndarray) -> np.ndarray:
     """Times that put each point in the smallest tube already drawn that ends no earlier than its
     own (a superset of its own tube)."""
-    tubes, rows = np.unique(frt.tube_indices(t_rel), return_inverse=True)
+    tubes, rows = frt.tubes_present(frt.tube_indices(t_rel))
     built = np.array([frt.nearest_built_tube(j) for j in tubes.tolist()], dtype=np.float64)
     return built[rows] * frt.slice_dt

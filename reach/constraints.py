@@ -182,6 +182,8 @@ def _coordinates(*geometries: BaseGeometry) -> np.ndarray:
 def _cut(parts: list[BaseGeometry], radius: float, limit: int) -> list[BaseGeometry]:
     """Parts cut in two, the best cut first, while there are fewer than ``limit`` and a cut
     shrinks its part's piece by more than ``MIN_CUT_GAIN`` of it."""
+    if len(parts) >= limit:
+        return parts
     cuts = [(part, _best_cut(part, radius)) for part in parts]
     while len(cuts) < limit:
         i = int(np.argmax([gain for _, (gain, _) in cuts]))
@@ -201,6 +203,10 @@ def _best_cut(
     if part.area <= 0.0 or part.area >= hull.area * (1.0 - 1e-9):
         return 0.0, None
     whole = float(_c_areas([part], radius)[0])
+    # The halves' pieces cover part ⊕ B_r, so no cut gains more than the hull's excess over it
+    # (over the buffer's polygon, which lies inside it: a bound at least as large).
+    if whole - part.buffer(radius, quad_segs=8).area <= MIN_CUT_GAIN * whole:
+        return 0.0, None
     xy = shapely.get_coordinates(hull)
     angles = math.pi * np.arange(CUT_DIRECTIONS) / CUT_DIRECTIONS
     d = np.stack([np.cos(angles), np.sin(angles)], axis=1)  # [D, 2] cut normals

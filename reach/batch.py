@@ -75,10 +75,12 @@ def _tube_indices(sets: list[BoxTubeSet], t_rel: list[np.ndarray | None], n: int
 @dataclass(frozen=True)
 class Reduction:
     """What a batch check reads of each agent's distances: per trajectory (points
-    ``starts[k]:starts[k + 1]``) the least one and the first below ``thresholds[a]`` (agent a's)."""
+    ``starts[k]:starts[k + 1]``) the least one and the first point below ``thresholds[a]`` (agent
+    a's), a point being ``group`` consecutive probes (a footprint's discs) whose least counts."""
 
     starts: np.ndarray
     thresholds: Sequence[float]
+    group: int = 1
 
 
 def trajectory_surrogates_of(
@@ -105,6 +107,7 @@ def trajectory_surrogates_of(
                 np.stack([x[a], y[a]], axis=1),
                 reduction.starts,
                 reduction.thresholds[a],
+                reduction.group,
             )
         )
     return out

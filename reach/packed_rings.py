@@ -111,20 +111,22 @@ def trajectory_surrogates(
     xy: np.ndarray,
     starts: np.ndarray,
     threshold: float,
+    group: int = 1,
 ) -> np.ndarray:
-    """Per point, its signed distance to polygon ``which[i]`` or a lower bound of it, such that per
-    trajectory (points ``starts[k]:starts[k + 1]``) the least value and the first value below
-    ``threshold`` are those of the signed distances (see the module docstring)."""
+    """Per probe, its signed distance to polygon ``which[i]`` or a lower bound of it, such that per
+    trajectory the least value and the first point whose value is below ``threshold`` are those of
+    the signed distances (see the module docstring). A point is ``group`` consecutive probes (a
+    footprint's discs) and its value their least; trajectory k is the points
+    ``starts[k]:starts[k + 1]``."""
     out = np.empty(len(xy), dtype=np.float64)
     begins = np.asarray(starts, dtype=np.int64)
-    ends = np.append(begins[1:], len(xy))
+    ends = np.append(begins[1:], len(xy) // group)
     _surrogates(
         *_arrays(packed),
         packed.boxes,
         *_points(xy),
         np.asarray(which, dtype=np.int64),
-        begins,
-        ends,
+        (begins, ends, group),
         float(threshold),
         out,
     )
@@ -193,7 +195,7 @@ def _signed(segments, segment_starts, chunk_boxes, chunk_starts, g, x, y):
 
 
 @numba.njit(cache=True)
-def _segment_distance2(segments, e, x, y):  # noqa: ANN001, ANN202
+def _segment_distance2(segments, e, x, y):
     """Squared distance from (x, y) to segment e."""
     x0, y0, x1, y1 = segments[e, 0], segments[e, 1], segments[e, 2], segments[e, 3]
     dx, dy = x1 - x0, y1 - y0
@@ -228,70 +230,85 @@ def _all_signed(segments, segment_starts, chunk_boxes, chunk_starts, xs, ys, whi
 SCAN_POINTS = 64
 
 
-@numba.njit(cache=True)
-def _least_by_bounds(  # noqa: ANN001, ANN202
-    segments, segment_starts, chunk_boxes, chunk_starts, xs, ys, which, a, b, exact, out
-):
-    """The least signed distance of points ``a:b`` whose lower bounds are in ``out``: points
-    evaluated (``exact``, ``out``) in increasing order of their bounds until the next bound is no
-    less than the least distance found."""
+@numba.njit(cache=True, inline="always")
+def _evaluate(rings, xs, ys, which, group, p, out):
+    """Point p's value, the least signed distance of its probes, whose lower bounds are in
+    ``out``: probes measured (into ``out``) in increasing order of their bounds until the next
+    bound is no less than the least distance found (the rest keep their bounds)."""
+    segments, segment_starts, chunk_boxes, chunk_starts = rings
+    first = p * group
+    if group == 1:
+        out[first] = _signed(
+            segments, segment_starts, chunk_boxes, chunk_starts, which[first], xs[first], ys[first]
+        )
+        return out[first]
     least = np.inf
-    if b - a > SCAN_POINTS:
-        order = np.argsort(out[a:b]) + a
-    else:
-        order = np.empty(0, dtype=np.int64)
-    for r in range(b - a):
-        if len(order):
-            i = order[r]
-        else:  # the unevaluated point of least bound
-            i, bound = -1, np.inf
-            for j in range(a, b):
-                if not exact[j] and out[j] < bound:
-                    i, bound = j, out[j]
-            if i < 0:
-                break
-        if out[i] >= least:
+    done = np.zeros(group, dtype=np.bool_)
+    for _ in range(group):
+        i, bound = -1, np.inf
+        for g in range(group):
+            if not done[g] and out[first + g] < bound:
+                i, bound = first + g, out[first + g]
+        if i < 0 or bound >= least:
             break
+        done[i - first] = True
         out[i] = _signed(
             segments, segment_starts, chunk_boxes, chunk_starts, which[i], xs[i], ys[i]
         )
-        exact[i] = True
         least = min(least, out[i])
+    return least
+
+
+@numba.njit(cache=True, inline="always")
+def _least_by_bounds(rings, xs, ys, which, group, a, b, exact, value, out):
+    """The least value of points ``a:b`` whose lower bounds are in ``value``: points evaluated
+    (``exact``, ``value``, their probes' ``out``) in increasing order of their bounds until the
+    next bound is no less than the least value found."""
+    least = np.inf
+    order = np.argsort(value[a:b]) + a if b - a > SCAN_POINTS else np.empty(0, dtype=np.int64)
+    for r in range(b - a):
+        if len(order):
+            p = order[r]
+        else:  # the unevaluated point of least bound
+            p, bound = -1, np.inf
+            for j in range(a, b):
+                if not exact[j] and value[j] < bound:
+                    p, bound = j, value[j]
+            if p < 0:
+                break
+        if value[p] >= least:
+            break
+        value[p] = _evaluate(rings, xs, ys, which, group, p, out)
+        exact[p] = True
+        least = min(least, value[p])
     return least
 
 
 @numba.njit(cache=True)
 def _surrogates(
-    segments,
-    segment_starts,
-    chunk_boxes,
-    chunk_starts,
-    boxes,
-    xs,
-    ys,
-    which,
-    begins,
-    ends,
-    threshold,
-    out,
+    segments, segment_starts, chunk_boxes, chunk_starts, boxes, xs, ys, which, spans, threshold, out
 ):
-    exact = np.zeros(len(xs), dtype=np.bool_)
+    begins, ends, group = spans
+    rings = (segments, segment_starts, chunk_boxes, chunk_starts)
+    points = len(xs) // group
+    exact = np.zeros(points, dtype=np.bool_)
+    value = np.empty(points, dtype=np.float64)
     for k in range(len(begins)):
         a, b = begins[k], ends[k]
-        for i in range(a, b):
-            out[i] = _box_bound(boxes[which[i]], xs[i], ys[i])
-        least = _least_by_bounds(
-            segments, segment_starts, chunk_boxes, chunk_starts, xs, ys, which, a, b, exact, out
-        )
+        for p in range(a, b):
+            bound = np.inf
+            for i in range(p * group, (p + 1) * group):
+                out[i] = _box_bound(boxes[which[i]], xs[i], ys[i])
+                bound = min(bound, out[i])
+            value[p] = bound
+        least = _least_by_bounds(rings, xs, ys, which, group, a, b, exact, value, out)
         if least >= threshold:
             continue
-        for i in range(a, b):
-            if out[i] >= threshold:
+        for p in range(a, b):
+            if value[p] >= threshold:
                 continue
-            if not exact[i]:
-                out[i] = _signed(
-                    segments, segment_starts, chunk_boxes, chunk_starts, which[i], xs[i], ys[i]
-                )
-                exact[i] = True
-            if out[i] < threshold:
+            if not exact[p]:
+                value[p] = _evaluate(rings, xs, ys, which, group, p, out)
+                exact[p] = True
+            if value[p] < threshold:
                 break

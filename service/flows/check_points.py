@@ -48,11 +48,6 @@ class CheckPoints:
     def probe_times(self) -> np.ndarray:
         return self.times if self.cover is None else np.repeat(self.times, self.cover.count)
 
-    @property
-    def probe_starts(self) -> np.ndarray:
-        """Each trajectory's first probe row."""
-        return self.starts if self.cover is None else self.starts * self.cover.count
-
     def thresholds(self, radii: np.ndarray) -> np.ndarray:
         """The distance to K below which a probe collides, per agent of R_col ``radii``."""
         return radii if self.cover is None else radii + self.cover.radius

@@ -294,7 +294,7 @@ def _exact_distances(
     else:
         thresholds = [reduction.thresholds[i] for i in plain]
         together = trajectory_surrogates_of(
-            sets, xy, times, Reduction(reduction.starts, thresholds)
+            sets, xy, times, Reduction(reduction.starts, thresholds, reduction.group)
         )
     distances.update(zip(plain, together, strict=True))
     for i in pending:
@@ -409,7 +409,9 @@ def _count_reasons(services: Services, **counts: int) -> None:
 
 def _for_agent(reduction: Reduction | None, i: int) -> Reduction | None:
     """``reduction`` with agent i's threshold alone."""
-    return None if reduction is None else Reduction(reduction.starts, [reduction.thresholds[i]])
+    if reduction is None:
+        return None
+    return Reduction(reduction.starts, [reduction.thresholds[i]], reduction.group)
 
 
 def _reduction(
@@ -419,7 +421,8 @@ def _reduction(
     the first collision (None: every point's clearance is answered)."""
     if not points.batch or request.include_clearance:
         return None
-    return Reduction(points.probe_starts, points.thresholds(radii).tolist())
+    group = 1 if points.cover is None else points.cover.count
+    return Reduction(points.starts, points.thresholds(radii).tolist(), group)
 
 
 def _collision_radii(

@@ -61,7 +61,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     )
     app.add_middleware(BearerAuthMiddleware, token=settings.auth_token)
     app.add_middleware(
-        RequestContextMiddleware, metrics=services.metrics, log_requests=settings.log_requests
+        RequestContextMiddleware,
+        metrics=services.metrics,
+        log_requests=settings.log_requests,
+        replica=settings.replica_id,
     )
 
     generate_openapi = app.openapi

@@ -41,12 +41,20 @@ class RequestContextMiddleware:
 
     Every HTTP response carries ``Server-Timing: app;dur=<ms>``, the time from the request's arrival
     to the response's start: a client subtracts it from its own round trip to see what the trip,
-    not the service, cost (a planner's deadline counts both)."""
+    not the service, cost (a planner's deadline counts both); and, with a ``replica`` name,
+    ``X-FRT-Replica: <replica>`` (which replica behind a load balancer answered)."""
 
-    def __init__(self, app: ASGIApp, metrics: Metrics, log_requests: bool = True) -> None:
+    def __init__(
+        self,
+        app: ASGIApp,
+        metrics: Metrics,
+        log_requests: bool = True,
+        replica: str | None = None,
+    ) -> None:
         self.app = app
         self.metrics = metrics
         self.log_requests = log_requests
+        self.replica_header = [(b"x-frt-replica", replica.encode())] if replica else []
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] not in ("http", "websocket"):
@@ -71,6 +79,7 @@ class RequestContextMiddleware:
                 headers.append((b"x-request-id", request_id.encode()))
                 duration_ms = (time.perf_counter() - start) * 1000.0
                 headers.append((b"server-timing", f"app;dur={duration_ms:.3f}".encode()))
+                headers += self.replica_header
                 message = {**message, "headers": headers}
             await send(message)
 

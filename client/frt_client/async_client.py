@@ -37,15 +37,17 @@ class AsyncFRTClient(AsyncOperations):
         retry: RetryPolicy | None = None,
         headers: dict[str, str] | None = None,
         limits: httpx.Limits | None = None,
+        scene: str | None = None,
     ) -> None:
         self.base_url = wire.base_url(base_url)
         self.token = token
+        self.scene = scene
         self.timeout = wire.timeout(timeout)
         self.retry = retry if retry is not None else RetryPolicy()
         self._http = httpx.AsyncClient(
             base_url=self.base_url,
             timeout=self.timeout,
-            headers=wire.headers(token, headers),
+            headers=wire.headers(token, headers, scene),
             limits=limits or wire.DEFAULT_LIMITS,
         )
 
@@ -131,6 +133,7 @@ class AsyncFRTClient(AsyncOperations):
         return AsyncStream(
             wire.websocket_url(self.base_url),
             token=self.token,
+            scene=self.scene,
             timeout=timeout if timeout is not None else wire.read_timeout(self.timeout),
             connect_timeout=wire.connect_timeout(self.timeout),
             retry=self.retry,

@@ -21,6 +21,7 @@ from frt_client.models import Response
 from frt_client.operations import AsyncOperations
 from frt_client.retry import RetryPolicy, note
 from frt_client.stream import MAX_MESSAGE_BYTES, handshake_error
+from frt_client.wire import scene_header
 
 T = TypeVar("T", bound=Response)
 
@@ -41,12 +42,14 @@ class AsyncStream(AsyncOperations):
         timeout: float = 5.0,
         connect_timeout: float = 2.0,
         retry: RetryPolicy | None = None,
+        scene: str | None = None,
     ) -> None:
         self.url = url
         self.timeout = timeout
         self.connect_timeout = connect_timeout
         self.retry = retry if retry is not None else RetryPolicy()
         self._headers = {"Authorization": f"Bearer {token}"} if token else {}
+        self._headers.update(scene_header(scene))
         self._ws: ClientConnection | None = None
         self._reader: asyncio.Task[None] | None = None
         self._pending: dict[int, asyncio.Future[dict[str, Any]]] = {}

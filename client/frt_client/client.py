@@ -30,6 +30,9 @@ class FRTClient(Operations):
         headers: extra headers for every request.
         limits: the connection pool (``httpx.Limits``); keep ``keepalive_expiry`` below the
             server's keep-alive timeout.
+        scene: the scene this client's agents belong to, sent as ``X-FRT-Scene`` on every request
+            and stream: behind nginx every request of one scene goes to one replica (none: nginx
+            routes by the client's address).
 
     Use it as a context manager, or call :meth:`close`::
 
@@ -49,15 +52,17 @@ class FRTClient(Operations):
         retry: RetryPolicy | None = None,
         headers: dict[str, str] | None = None,
         limits: httpx.Limits | None = None,
+        scene: str | None = None,
     ) -> None:
         self.base_url = wire.base_url(base_url)
         self.token = token
+        self.scene = scene
         self.timeout = wire.timeout(timeout)
         self.retry = retry if retry is not None else RetryPolicy()
         self._http = httpx.Client(
             base_url=self.base_url,
             timeout=self.timeout,
-            headers=wire.headers(token, headers),
+            headers=wire.headers(token, headers, scene),
             limits=limits or wire.DEFAULT_LIMITS,
         )
 
@@ -143,6 +148,7 @@ class FRTClient(Operations):
         return Stream(
             wire.websocket_url(self.base_url),
             token=self.token,
+            scene=self.scene,
             timeout=timeout if timeout is not None else wire.read_timeout(self.timeout),
             connect_timeout=wire.connect_timeout(self.timeout),
             retry=self.retry,

@@ -23,6 +23,7 @@ from frt_client.errors import DeadlineError, FRTError, UnavailableError, from_st
 from frt_client.models import Response
 from frt_client.operations import Operations
 from frt_client.retry import RetryPolicy, note
+from frt_client.wire import scene_header
 
 T = TypeVar("T", bound=Response)
 
@@ -49,6 +50,7 @@ class Stream(Operations):
         timeout: seconds to wait for each answer (:class:`DeadlineError` after that).
         connect_timeout: seconds for the opening handshake.
         retry: backoff for opening the connection (connection refused, handshake timeout).
+        scene: sent as ``X-FRT-Scene`` in the opening handshake (the stream's replica, behind nginx).
     """
 
     def __init__(
@@ -59,12 +61,14 @@ class Stream(Operations):
         timeout: float = 5.0,
         connect_timeout: float = 2.0,
         retry: RetryPolicy | None = None,
+        scene: str | None = None,
     ) -> None:
         self.url = url
         self.timeout = timeout
         self.connect_timeout = connect_timeout
         self.retry = retry if retry is not None else RetryPolicy()
         self._headers = {"Authorization": f"Bearer {token}"} if token else {}
+        self._headers.update(scene_header(scene))
         self._ws: ClientConnection | None = None
         self._stack = ExitStack()  # holds the connection's context open between calls
         self._next_id = 0

@@ -25,6 +25,10 @@ DEFAULT_LIMITS = httpx.Limits(
     max_connections=100, max_keepalive_connections=20, keepalive_expiry=2.0
 )
 USER_AGENT = "frt-client/0.1"
+#: The header naming the client's scene: behind nginx (docker/nginx.conf) every request of one scene
+#: goes to one replica, which then computes each of the scene's sets once.
+SCENE_HEADER = "X-FRT-Scene"
+MAX_SCENE_CHARS = 128
 
 TimeoutLike = float | httpx.Timeout | None
 
@@ -44,12 +48,30 @@ def websocket_url(url: str, path: str = "/v1/stream") -> str:
     return f"{scheme}://{parts.netloc}{parts.path}{path}"
 
 
-def headers(token: str | None, extra: dict[str, str] | None = None) -> dict[str, str]:
+def headers(
+    token: str | None, extra: dict[str, str] | None = None, scene: str | None = None
+) -> dict[str, str]:
     result = {"user-agent": USER_AGENT, "accept": "application/json"}
     if token:
         result["authorization"] = f"Bearer {token}"
+    result.update(scene_header(scene))
     result.update(extra or {})
     return result
+
+
+def scene_header(scene: str | None) -> dict[str, str]:
+    """``{SCENE_HEADER: scene}``, or nothing for None; a scene is 1-128 printable ASCII characters,
+    not only spaces."""
+    if scene is None:
+        return {}
+    if (
+        not isinstance(scene, str)
+        or not scene.strip()
+        or len(scene) > MAX_SCENE_CHARS
+        or not all(" " <= c <= "~" for c in scene)
+    ):
+        raise ValueError(f"scene must be 1-{MAX_SCENE_CHARS} printable ASCII characters: {scene!r}")
+    return {SCENE_HEADER: scene}
 
 
 def timeout(value: TimeoutLike) -> httpx.Timeout:

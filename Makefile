@@ -113,11 +113,14 @@ load: $(STAMP)
 
 # make load's mix at 50 humans x 10 Hz, 2 planners x 10 Hz against a service started here: one
 # process, then three replicas behind nginx (make scale-test's topology); results/load_scale.json.
+# FRAMES=1: the 50 humans in 6 scenes, each observed in one POST /v1/frames per period and checked
+# by a planner of its own, every request with its X-FRT-Scene; results/load_scale_frames.json.
+LOAD_SCALE = $(if $(FRAMES),--frames --scenes 6 --planners 1 --out results/load_scale_frames.json,--out results/load_scale.json)
 load-scale: $(STAMP)
 	$(BIN)/python scripts/load_topology.py --topology single --humans 50 --obs-hz 10 \
-		--duration $(DURATION) --label "one process" --out results/load_scale.json
+		--duration $(DURATION) --label "one process" $(LOAD_SCALE)
 	$(BIN)/python scripts/load_topology.py --topology replicas --replicas 3 --humans 50 \
-		--obs-hz 10 --duration $(DURATION) --label "three replicas" --out results/load_scale.json
+		--obs-hz 10 --duration $(DURATION) --label "three replicas" $(LOAD_SCALE)
 
 # Where the time goes under make load's mix: py-spy samples of the server and its workers.
 profile-load: $(STAMP)

@@ -8,6 +8,12 @@ since the previous observation (its average controls), and a constant-control pr
 ``--check-hz``. Every task paces itself on a fixed schedule and never has more than one request in
 flight, so the offered load is bounded; the run stops by itself after ``--duration`` seconds.
 
+With ``--scenes S`` the humans are split into S scenes (``scene-0``, ...), each with its own
+``--planners`` planners checking only that scene's humans, and every request of a scene carries
+``X-FRT-Scene`` (``FRTClient(scene=...)``): behind nginx each scene goes to one replica. With
+``--frames`` a scene's humans are observed together: one ``POST /v1/frames`` per period, every
+human of the scene in it (``FRTClient.frame``), instead of one observation per human.
+
 At the end it verifies, for every human, that the service holds exactly the β the harness computes
 from what it sent (with the service's own filter, ``service.flows.confidence``), the FRT version equal to
 the number of observations accepted, and the last timestamp sent; and each observation's answer
@@ -16,6 +22,7 @@ writes a JSON summary (``--out``, default results/load.json) and a latency plot 
 Exit status: 0 clean, 1 errors or lost updates, 2 refused arguments or service not ready.
 
     python scripts/load.py --url http://127.0.0.1:8000 --duration 60 --planners 2 --humans 10
+    python scripts/load.py --frames --scenes 5 --planners 1 --humans 50 --obs-hz 10
 """
 
 from __future__ import annotations
@@ -30,8 +37,9 @@ import re
 import sys
 import time
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Coroutine, Iterator
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 from urllib.parse import urlsplit
@@ -44,6 +52,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from frt_client import NO_RETRY, AsyncFRTClient, FRTError  # noqa: E402
+from frt_client.models import FrameRejection  # noqa: E402
 
 from service.flows.confidence import Belief, hypotheses, prior_belief, update_belief  # noqa: E402
 
@@ -51,6 +60,7 @@ LOCAL_HOSTS = {"127.0.0.1", "localhost", "::1"}
 MAX_DURATION_S = 600.0
 MAX_PLANNERS = 32
 MAX_HUMANS = 256
+MAX_SCENES = 32
 OBS_HZ = (2.0, 10.0)
 CHECK_HZ = (10.0, 20.0)
 #: The prediction: constant controls over the horizon, HORIZON_STEPS steps of PRED_DT seconds.
@@ -77,6 +87,14 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--humans", type=int, default=10, help=f"simulated humans (1..{MAX_HUMANS})")
     p.add_argument("--obs-hz", type=float, default=5.0, help="observations per human per second")
     p.add_argument("--check-hz", type=float, default=10.0, help="checks per planner per second")
+    p.add_argument(
+        "--scenes", type=int, default=1, help=f"scenes the humans are split into (1..{MAX_SCENES}), "
+        "each with --planners planners of its own and its X-FRT-Scene header (none for 1)"
+    )  # fmt: skip
+    p.add_argument(
+        "--frames", action="store_true", help="observe a scene's humans together: one POST "
+        "/v1/frames per period with every human of the scene"
+    )  # fmt: skip
     p.add_argument("--deadline-ms", type=float, default=20.0, help="deadline of each check")
     p.add_argument("--timeout", type=float, default=2.0, help="client timeout per request, s")
     p.add_argument("--transport", choices=("http", "ws"), default="http")
@@ -103,6 +121,10 @@ def refusal(args: argparse.Namespace) -> str | None:
         return f"--duration must be in (0, {MAX_DURATION_S:g}] s"
     if not 1 <= args.planners <= MAX_PLANNERS or not 1 <= args.humans <= MAX_HUMANS:
         return f"--planners must be 1..{MAX_PLANNERS} and --humans 1..{MAX_HUMANS}"
+    if not 1 <= args.scenes <= min(MAX_SCENES, args.humans):
+        return f"--scenes must be 1..{MAX_SCENES} and at most --humans"
+    if args.scenes * args.planners > MAX_PLANNERS:
+        return f"--scenes x --planners must be at most {MAX_PLANNERS}"
     if not OBS_HZ[0] <= args.obs_hz <= OBS_HZ[1]:
         return f"--obs-hz must be in [{OBS_HZ[0]:g}, {OBS_HZ[1]:g}]"
     if not CHECK_HZ[0] <= args.check_hz <= CHECK_HZ[1]:
@@ -254,6 +276,8 @@ class Stats:
     over_deadline: int = 0
     conservative: int = 0
     answers: int = 0  # per-agent answers of all checks
+    #: Per-agent answers by verdict: exact, decision_exact, conservative (API.md, "Frames").
+    verdicts: dict[str, int] = field(default_factory=dict)
     skipped_ticks: int = 0
 
     def record(self, op: str, at: float, seconds: float) -> None:
@@ -330,6 +354,53 @@ async def perceive(
         last_t = t
 
 
+async def perceive_frames(
+    ops: Any,
+    humans: list[Human],
+    expectations: dict[str, Expected],
+    clock0: float,
+    end: float,
+    hz: float,
+    stats: Stats,
+) -> None:
+    """Observe a scene's ``humans`` together at ``hz`` until ``end``: one frame per period with
+    every one of them (one request in flight at a time)."""
+    last_t: float | None = None
+    for at in ticks(clock0 + random.uniform(0, 1.0 / hz), hz, end, stats):
+        await sleep_until(at)
+        t = time.monotonic() - clock0
+        entries = []
+        for human in humans:
+            entries.append(
+                {
+                    "agent_id": human.agent_id,
+                    "observed_action": None if last_t is None else human.advance(last_t, t),
+                    "prediction": human.prediction(t),
+                    "state": (human.x, human.y, human.heading, human.speed),
+                }
+            )
+        started = time.perf_counter()
+        try:
+            answer = await ops.frame(timestamp=t, agents=entries)
+        except FRTError as exc:
+            stats.error("frame", exc)
+            if exc.status is None or (exc.status >= 500 and exc.status != 503):
+                for human in humans:  # each may or may not have been applied
+                    expectations[human.agent_id].uncertain = True
+        else:
+            stats.record("frame", t, time.perf_counter() - started)
+            for entry, result in zip(entries, answer.results, strict=True):
+                expected = expectations[entry["agent_id"]]
+                if isinstance(result, FrameRejection):
+                    error = FRTError(result.error.detail, status=result.error.status)
+                    stats.error("frame", error)
+                    continue
+                expected.accept(entry["observed_action"], entry["prediction"], t)
+                if not expected.uncertain:
+                    expected.check_answer(result.beta, result.frt_version)
+        last_t = t
+
+
 async def plan(
     ops: Any,
     index: int,
@@ -358,6 +429,9 @@ async def plan(
         stats.record("check", t, seconds)
         stats.conservative += sum(1 for r in answer.results if r.conservative)
         stats.answers += len(answer.results)
+        for result in answer.results:
+            verdict = result.verdict or ("conservative" if result.conservative else "exact")
+            stats.verdicts[verdict] = stats.verdicts.get(verdict, 0) + 1
         if seconds * 1000.0 > args.deadline_ms:
             stats.over_deadline += 1
 
@@ -499,6 +573,8 @@ def print_report(summary: dict[str, Any]) -> None:
         f"\nFRT load test: {cfg['planners']} planners x {cfg['humans']} humans, "
         f"obs {cfg['obs_hz']:g} Hz/human, checks {cfg['check_hz']:g} Hz/planner "
         f"({cfg['transport']}), {summary['elapsed_s']:.1f} s against {cfg['url']}"
+        + (f", {cfg['scenes']} scenes" if cfg["scenes"] > 1 else "")
+        + (", observed in frames" if cfg["frames"] else "")
     )
     header = f"{'op':<9}{'count':>8}{'err':>6}{'req/s':>9}{'p50 ms':>9}{'p95 ms':>9}"
     print(header + f"{'p99 ms':>9}{'max ms':>9}")
@@ -522,7 +598,8 @@ def print_report(summary: dict[str, Any]) -> None:
     if share is not None:
         print(
             f"exact answers: {d['answers'] - d['conservative_answers']} of {d['answers']} "
-            f"per-agent answers ({100.0 * share:.1f} %)"
+            f"per-agent answers ({100.0 * share:.1f} %); by verdict {d['verdicts']}, exact or "
+            f"decision-exact {100.0 * d['decision_exact_share']:.1f} %"
         )
     if area["k"] is not None:
         print(
@@ -575,10 +652,11 @@ def plot(stats: Stats, summary: dict[str, Any], path: Path) -> None:
 # ------------------------------------------------------------------------------------ the run
 
 
-def client_for(args: argparse.Namespace) -> AsyncFRTClient:
+def client_for(args: argparse.Namespace, scene: str | None = None) -> AsyncFRTClient:
     return AsyncFRTClient(
         args.url,
         token=args.token,
+        scene=scene,
         timeout=httpx.Timeout(args.timeout, connect=2.0),
         retry=NO_RETRY,  # a load test reports failures, it does not hide them
         limits=httpx.Limits(
@@ -589,42 +667,76 @@ def client_for(args: argparse.Namespace) -> AsyncFRTClient:
     )
 
 
+def scene_names(args: argparse.Namespace) -> list[str | None]:
+    """The scenes' X-FRT-Scene values (None: one scene, no header)."""
+    return [f"scene-{i}" for i in range(args.scenes)] if args.scenes > 1 else [None]
+
+
+async def drive(
+    args: argparse.Namespace,
+    clients: list[AsyncFRTClient],
+    scenes: list[list[Human]],
+    expectations: dict[str, Expected],
+    stats: Stats,
+) -> float:
+    """Every scene's perception (per human, or one frame per period) and planners until the
+    run's end, through the scene's client; the seconds it took."""
+    sessions: list[Any] = []
+
+    def ops_of(client: AsyncFRTClient) -> Any:
+        if args.transport != "ws":
+            return client
+        sessions.append(client.stream(timeout=args.timeout))
+        return sessions[-1]
+
+    # Each task's operations first (a stream each, with --transport ws), then the schedule.
+    starts: list[Callable[[float, float], Coroutine[Any, Any, None]]] = []
+    for client, group in zip(clients, scenes, strict=True):
+        pace = {"hz": args.obs_hz, "stats": stats}
+        if args.frames:
+            starts.append(partial(perceive_frames, ops_of(client), group, expectations, **pace))
+        else:
+            starts += [
+                partial(perceive, ops_of(client), h, expectations[h.agent_id], **pace)
+                for h in group
+            ]
+        ids = [h.agent_id for h in group]
+        starts += [
+            partial(plan, ops_of(client), i, ids, args=args, stats=stats)
+            for i in range(args.planners)
+        ]
+    try:
+        await asyncio.gather(*(s.open() for s in sessions))
+        clock0 = time.monotonic()
+        tasks = [start(clock0, clock0 + args.duration) for start in starts]
+        await asyncio.wait_for(asyncio.gather(*tasks), timeout=args.duration + 30.0)
+    finally:
+        for session in sessions:
+            await session.close()
+    return time.monotonic() - clock0
+
+
 async def run(args: argparse.Namespace) -> tuple[dict[str, Any], Stats]:
     rng = random.Random(args.seed)
     random.seed(args.seed)
     run_id = uuid.uuid4().hex[:8]
-    async with client_for(args) as client:
+    async with contextlib.AsyncExitStack() as stack:
+        clients = [
+            await stack.enter_async_context(client_for(args, scene)) for scene in scene_names(args)
+        ]
+        client = clients[0]
         await client.wait_ready(timeout_s=30.0)
         card = await client.model()
         v_max = card.ranges.get("v_start", [0.0, 20.0])[1]
         humans = make_humans(args.humans, run_id, v_max, rng)
+        scenes = [humans[i :: len(clients)] for i in range(len(clients))]
         expectations = {h.agent_id: Expected() for h in humans}
-        await settle_config(client, humans, expectations)
+        for scene_client, group in zip(clients, scenes, strict=True):
+            await settle_config(scene_client, group, expectations)
         agent_ids = [h.agent_id for h in humans]
         before = await server_counters(args.url)
         stats = Stats()
-
-        sessions: list[Any] = []
-        if args.transport == "ws":
-            count = len(humans) + args.planners
-            sessions = [client.stream(timeout=args.timeout) for _ in range(count)]
-            await asyncio.gather(*(s.open() for s in sessions))
-        ops = iter(sessions) if sessions else None
-
-        clock0 = time.monotonic()
-        end = clock0 + args.duration
-        tasks = [
-            perceive(next(ops) if ops else client, h, expectations[h.agent_id], clock0, end,
-                     args.obs_hz, stats)
-            for h in humans
-        ] + [
-            plan(next(ops) if ops else client, i, agent_ids, clock0, end, args, stats)
-            for i in range(args.planners)
-        ]  # fmt: skip
-        await asyncio.wait_for(asyncio.gather(*tasks), timeout=args.duration + 30.0)
-        elapsed = time.monotonic() - clock0
-        for session in sessions:
-            await session.close()
+        elapsed = await drive(args, clients, scenes, expectations, stats)
 
         after = await server_counters(args.url)
         verification = await verify(client, humans, expectations)
@@ -646,6 +758,7 @@ async def run(args: argparse.Namespace) -> tuple[dict[str, Any], Stats]:
         "config": {
             "url": args.url, "duration_s": args.duration, "planners": args.planners,
             "humans": args.humans, "obs_hz": args.obs_hz, "check_hz": args.check_hz,
+            "scenes": args.scenes, "frames": args.frames,
             "deadline_ms": args.deadline_ms, "timeout_s": args.timeout,
             "transport": args.transport, "seed": args.seed, "model": card.name,
             "trajectory_points": TRAJ_POINTS, "prediction_steps": HORIZON_STEPS,
@@ -664,8 +777,17 @@ async def run(args: argparse.Namespace) -> tuple[dict[str, Any], Stats]:
             "server_exact": delta("exact"),
             "answers": stats.answers,
             "exact_share": 1.0 - stats.conservative / stats.answers if stats.answers else None,
+            "verdicts": stats.verdicts,
+            "decision_exact_share": (
+                (stats.verdicts.get("exact", 0) + stats.verdicts.get("decision_exact", 0))
+                / stats.answers
+                if stats.answers
+                else None
+            ),
         },
         "fallback_area_ratio": area,
+        #: Observations the service stored during the run (each a new version of its agent).
+        "versions_stored": sum(e.accepted for e in expectations.values()) - len(humans),
         "skipped_ticks": stats.skipped_ticks,
         "verification": verification,
         "ok": errors == 0

@@ -13,10 +13,17 @@ Before the load it records how busy the machine is, in the same run: the HTTP fl
 in-process (this process, the shipped model) and the load average. Then it runs
 ``scripts/load.py`` with the given mix, and sums the servers' own counters (``/metrics`` of
 every replica, so nothing is missed behind nginx): per-agent answers from exact sets, checks
-answered late at the server. It prints one line per run and writes a JSON summary.
+answered late at the server, exact sets computed by origin (``frt_exact_sets``: a ``read`` set is
+one a replica computed for a version it did not store, i.e. computed twice across replicas or
+rebuilt). It prints one line per run and writes a JSON summary, with each server's own counters.
+
+``--frames --scenes S`` is load.py's frames mode: the humans split into S scenes, each observed in
+one ``POST /v1/frames`` per period and checked by its own planners, every request with its
+``X-FRT-Scene`` (nginx routes each scene to one replica).
 
     python scripts/load_topology.py --topology single --humans 50 --obs-hz 10 --duration 60
     python scripts/load_topology.py --topology replicas --replicas 3 --humans 50 --obs-hz 10
+    python scripts/load_topology.py --topology replicas --frames --scenes 6 --planners 1
 
 ``--src DIR`` serves another checkout of the project (e.g. an older commit exported with ``git
 archive``) with this venv, for side-by-side comparisons on a shared machine.
@@ -64,6 +71,8 @@ COUNTERS = {
     'frt_exact_phase_seconds_sum{phase="queued"}': "queued_seconds",
     'frt_exact_phase_seconds_count{phase="queued"}': "queued_sets",
     'frt_exact_phase_seconds_sum{phase="transfer"}': "transfer_seconds",
+    'frt_exact_sets_total{origin="observed"}': "sets_observed",
+    'frt_exact_sets_total{origin="read"}': "sets_read",
 }
 
 
@@ -81,6 +90,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--humans", type=int, default=10)
     p.add_argument("--obs-hz", type=float, default=5.0)
     p.add_argument("--check-hz", type=float, default=10.0)
+    p.add_argument("--scenes", type=int, default=1, help="load.py --scenes")
+    p.add_argument("--frames", action="store_true", help="load.py --frames")
     p.add_argument("--model", type=Path, default=ROOT / "models" / "frt_unicycle.onnx")
     p.add_argument("--src", type=Path, default=ROOT, help="the project checkout to serve")
     p.add_argument("--env", action="append", default=[], help="FRT_X=value for the servers")
@@ -245,16 +256,24 @@ def children(pid: int) -> list[int]:
     return found
 
 
-def counters(urls: list[str]) -> dict[str, float]:
-    """COUNTERS summed over every server."""
-    total = dict.fromkeys(COUNTERS.values(), 0.0)
+def counters_each(urls: list[str]) -> list[dict[str, float]]:
+    """COUNTERS of each server."""
+    found = []
     for url in urls:
+        values = dict.fromkeys(COUNTERS.values(), 0.0)
         text = httpx.get(f"{url}/metrics", timeout=5.0).text
         for line in text.splitlines():
             match = re.match(r"^(\S+?)\s+(\S+)$", line)
             if match and match.group(1) in COUNTERS:
-                total[COUNTERS[match.group(1)]] += float(match.group(2))
-    return total
+                values[COUNTERS[match.group(1)]] += float(match.group(2))
+        found.append(values)
+    return found
+
+
+def counters(urls: list[str]) -> dict[str, float]:
+    """COUNTERS summed over every server."""
+    each = counters_each(urls)
+    return {key: sum(values[key] for values in each) for key in COUNTERS.values()}
 
 
 def run(args: argparse.Namespace) -> dict[str, Any]:
@@ -265,7 +284,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             reference_ms = exact_reference(args.model)
             floor = http_floor(url)
             load_avg = os.getloadavg()[0]
-            before = counters(own)
+            before = counters_each(own)
             workers = [child for pid in pids for child in children(pid)]
             cpu_before = (sum(map(cpu_seconds, pids)), sum(map(cpu_seconds, workers)))
             harness_before = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -274,10 +293,11 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 sys.executable, str(LOAD), "--url", url, "--duration", str(args.duration),
                 "--planners", str(args.planners), "--humans", str(args.humans),
                 "--obs-hz", str(args.obs_hz), "--check-hz", str(args.check_hz),
-                "--model", str(args.model), "--out", str(out),
+                "--scenes", str(args.scenes), "--model", str(args.model), "--out", str(out),
+                *(["--frames"] if args.frames else []),
             ]  # fmt: skip
             done = subprocess.run(cmd, capture_output=True, text=True, timeout=args.duration + 300)
-            after = counters(own)
+            after = counters_each(own)
             harness_after = resource.getrusage(resource.RUSAGE_CHILDREN)
             cpu = {
                 "servers": sum(map(cpu_seconds, pids)) - cpu_before[0],
@@ -292,7 +312,8 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             load = json.loads(out.read_text())
     finally:
         shutil.rmtree(workdir, ignore_errors=True)
-    server = {key: after[key] - before[key] for key in after}
+    each = [{k: a[k] - b[k] for k in a} for a, b in zip(after, before, strict=True)]
+    server = {key: sum(values[key] for values in each) for key in COUNTERS.values()}
     answers = server["exact"] + server["conservative"]
     check = load["operations"].get("check", {})
     return {
@@ -302,7 +323,10 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "workers_per_server": args.workers,
         "src": str(args.src),
         "env": args.env,
-        "mix": {k: load["config"][k] for k in ("planners", "humans", "obs_hz", "check_hz")},
+        "mix": {
+            k: load["config"][k]
+            for k in ("planners", "humans", "obs_hz", "check_hz", "scenes", "frames")
+        },
         "duration_s": args.duration,
         "machine": {
             "http_floor_p50_ms": floor["p50_ms"],
@@ -312,7 +336,12 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         },
         "exact_share_client": load["deadline"]["exact_share"],
         "exact_share_server": server["exact"] / answers if answers else None,
+        #: Per-agent answers from the exact set or cleared by a set holding it (load.py's count).
+        "decision_exact_share_client": load["deadline"]["decision_exact_share"],
+        "verdicts": load["deadline"]["verdicts"],
+        "versions_stored": load["versions_stored"],
         "server": server,
+        "per_server": each,
         #: CPU seconds over the load, of the servers' own processes, of their exact-set workers
         #: and of the load harness (the rest of the machine's two cores went to other work).
         "cpu_seconds": cpu,
@@ -322,6 +351,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "late_server": server["deadline_misses"],
         "checks": check.get("count"),
         "observations": load["operations"].get("observe", {}).get("count"),
+        "frames": load["operations"].get("frame", {}).get("count"),
         "errors": load["errors"],
         "skipped_ticks": load["skipped_ticks"],
         "fallback_area_ratio": load["fallback_area_ratio"],
@@ -333,20 +363,27 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 def line(r: dict[str, Any]) -> str:
     m, s = r["machine"], r["server"]
     share = r["exact_share_server"]
+    decision = r["decision_exact_share_client"] or 0.0
     sets = s["exact_sets"]
+    mix = r["mix"]
+    scenes = f" in {mix['scenes']} scenes" if mix["scenes"] > 1 else ""
     return (
-        f"{r['label'] or r['topology']}: {r['replicas']} server(s), {r['mix']['humans']} humans "
-        f"at {r['mix']['obs_hz']:g} Hz, {r['mix']['planners']} planners at "
-        f"{r['mix']['check_hz']:g} Hz: exact {100 * share:.1f} % of per-agent answers "
+        f"{r['label'] or r['topology']}: {r['replicas']} server(s), {mix['humans']} humans "
+        f"at {mix['obs_hz']:g} Hz{scenes}{' observed in frames' if mix['frames'] else ''}, "
+        f"{mix['planners']} planners{' per scene' if scenes else ''} at "
+        f"{mix['check_hz']:g} Hz: exact {100 * share:.1f} % of per-agent answers, exact or "
+        f"decision-exact {100 * decision:.1f} % "
         f"(not ready {s['not_ready']:.0f}, no time {s['no_time']:.0f}, tubes {s['tubes']:.0f}); "
         f"check p50/p99 {r['check_p50_ms']:.2f}/{r['check_p99_ms']:.2f} ms, late "
         f"{r['late_client']} client / {r['late_server']:.0f} server of {r['checks']}; "
-        f"{sets:.0f} exact sets computed, {1000 * s['exact_seconds'] / max(sets, 1):.1f} ms each "
+        f"{sets:.0f} exact sets computed ({s['sets_observed']:.0f} observed, {s['sets_read']:.0f} "
+        f"read) for {r['versions_stored']} versions stored, "
+        f"{1000 * s['exact_seconds'] / max(sets, 1):.1f} ms each "
         f"in a worker, {1000 * s['queued_seconds'] / max(s['queued_sets'], 1):.1f} ms queued, "
         f"{1000 * s['transfer_seconds'] / max(sets, 1):.1f} ms in transfer; "
         f"CPU s: servers {r['cpu_seconds']['servers']:.0f}, workers "
         f"{r['cpu_seconds']['workers']:.0f}, load harness {r['cpu_seconds']['load_harness']:.0f}; "
-        f"{r['observations']} observations; "
+        f"{r['observations'] or 0} observations, {r['frames'] or 0} frames; "
         f"floor {m['http_floor_p50_ms']:.2f} ms, exact set in-process "
         f"{m['exact_set_in_process_ms']:.1f} ms, load average {m['load_average_1min']:.2f}"
     )

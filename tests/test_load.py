@@ -62,6 +62,29 @@ def test_a_short_load_run_has_no_errors_and_no_lost_updates(
     assert "p99 ms" in done.stdout and "lost or reordered updates: 0" in done.stdout
 
 
+def test_frames_in_scenes_lose_nothing(live_server: LiveServer, tmp_path: Path) -> None:
+    out = tmp_path / "frames.json"
+    done = run_load(
+        "--url", live_server.url, "--duration", "5", "--planners", "1", "--humans", "5",
+        "--scenes", "2", "--frames", "--obs-hz", "5", "--check-hz", "10", "--out", str(out),
+    )  # fmt: skip
+    assert done.returncode == 0, done.stdout + done.stderr
+    summary = json.loads(out.read_text())
+    assert summary["ok"] and summary["config"]["scenes"] == 2 and summary["config"]["frames"]
+    verification = summary["verification"]
+    assert verification["lost_updates"] == 0 and verification["verified"] == 5
+    assert verification["answers_off"] == 0
+    ops = summary["operations"]
+    assert "observe" not in ops and ops["frame"]["count"] >= 2 * 2  # each scene twice at least
+    assert ops["check"]["count"] >= 2
+    # Scenes of 3 and 2 humans: every frame stores a version of each of its scene's humans.
+    assert 2 * ops["frame"]["count"] <= summary["versions_stored"] <= 3 * ops["frame"]["count"]
+    d = summary["deadline"]
+    assert sum(d["verdicts"].values()) == d["answers"] > 0
+    assert d["exact_share"] <= d["decision_exact_share"] <= 1.0
+    assert "observed in frames" in done.stdout
+
+
 @pytest.mark.parametrize(
     "args",
     [
@@ -71,6 +94,8 @@ def test_a_short_load_run_has_no_errors_and_no_lost_updates(
         ["--obs-hz", "50"],
         ["--check-hz", "1"],
         ["--humans", "0"],
+        ["--humans", "2", "--scenes", "3"],
+        ["--scenes", "0"],
     ],
 )
 def test_refuses_other_hosts_and_unbounded_runs(

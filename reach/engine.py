@@ -323,22 +323,18 @@ class FRTEngine:
         """Each interval's field: its two instants' minimum dilated on the grid by how far a car
         moves in half a slice (plus one node step for the node sampling), cut to the interval's
         outer polygon; interval 0 is instant 0. And per interval, whether the dilated instants
-        hold its outer polygon (``_holds_polygon``, ``FieldTubeSet.outer_held``)."""
+        hold its outer polygon (``FieldTubeSet.outer_held``): the interval field is <= 0 wherever
+        the polygon's own field is, and equal to it within a cell diagonal of its zero
+        (``WindowStack.interval_fields``). The two fields then have the same sign at every node,
+        and the same value at every node of a cell where the sign changes (the polygon's field is
+        1-Lipschitz), so their contours are one: K over the interval is the polygon."""
         k = self.outer_steps_per_slice
         speed = span_reduce(block_reduce(ob.sweep_speed_max, k, np.maximum), np.maximum)
         speed[0] = 0.0
-        grown = dilate_discs(field, speed * self.slice_dt / 2 / grid.lattice.step + 1.0)
-        grown[~grid.valid] = FAR
-        sweep = np.empty_like(field)
-        sweep[0] = field[0]
-        held = np.zeros(self.n_slices, dtype=bool)
+        radii = speed * self.slice_dt / 2 / grid.lattice.step + 1.0
+        grown = dilate_discs(field, radii, (grid.windows.h, grid.windows.w))
         band = np.float32(math.sqrt(2.0) * grid.lattice.step * (1.0 + 1e-6))
-        for j in range(1, self.n_slices):
-            near = np.minimum(grown[j], grid.windows.shifted(grown, j - 1, j))
-            held[j] = _holds_polygon(near, grid.interval[j], grid.valid[j], band)
-            np.maximum(near, grid.interval[j], out=sweep[j])
-        sweep[~grid.valid] = FAR
-        return sweep, held
+        return grid.windows.interval_fields(field, grown, grid.interval, grid.valid, band)
 
     @staticmethod
     def notch_instants(ob: OuterBound, rows: list[int]) -> np.ndarray:
@@ -430,17 +426,3 @@ class FRTEngine:
             )
             return refined.values, refined.evaluated
         return evaluate(inside)
-
-
-def _holds_polygon(near: np.ndarray, polygon: np.ndarray, valid: np.ndarray, band: float) -> bool:
-    """Whether the interval field max(``near``, ``polygon``) has the zero contour of the polygon's
-    own field (both on the ``valid`` nodes of one window): ``near`` <= 0 wherever the polygon's
-    field is, and ``near`` <= the polygon's field within ``band`` (a cell diagonal) of its zero.
-    The two fields then have the same sign at every node, and the same value at every node of a
-    cell where the sign changes (the polygon's field is 1-Lipschitz), so their contours are one:
-    K over the interval is the polygon."""
-    inside = valid & (polygon <= 0)
-    if not np.all(near[inside] <= 0):
-        return False
-    edge = valid & (np.abs(polygon) <= band)
-    return bool(np.all(near[edge] <= polygon[edge]))

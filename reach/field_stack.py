@@ -116,6 +116,24 @@ class WindowStack:
             out[r0:r1, c0:c1] = stack[src, r0 + dk : r1 + dk, c0 + di : c1 + di]
         return out
 
+    def interval_fields(
+        self,
+        field: np.ndarray,
+        grown: np.ndarray,
+        interval: np.ndarray,
+        valid: np.ndarray,
+        band: np.float32,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Per interval j >= 1, the field max(min(``grown[j]``, ``grown[j - 1]`` seen from window
+        j), ``interval[j]``) ([J, H, W]; slot 0 holds ``field[0]``; FAR at the nodes not ``valid``,
+        where ``grown`` is set to FAR too), and whether the interval is held by its polygon: at
+        every valid node of window j, the minimum is <= 0 where ``interval[j]`` is, and <= it
+        where ``|interval[j]|`` <= ``band`` ([J] bool, False at 0). Compiled
+        (``_interval_fields``), with ``np.minimum``'s and ``np.maximum``'s choices."""
+        return _interval_fields(  # type: ignore[no-any-return]
+            field, grown, interval, valid, self.k0, self.i0, self.h, self.w, band
+        )
+
 
 @numba.njit(cache=True)
 def _polygon_fields(
@@ -149,36 +167,134 @@ def _polygon_fields(
 
 
 def compile_field_kernels() -> None:
-    """Compile (or load from numba's cache) ``_polygon_fields`` before a set needs it (the
-    first compilation after a change takes seconds)."""
+    """Compile (or load from numba's cache) the kernels of this module before a set needs them
+    (the first compilation after a change takes seconds), for the engine's float32 fields."""
     one = np.zeros((1, 1))
     _polygon_fields(
         one, one, np.ones((1, 1, 1), dtype=np.bool_), one[0], one[0], np.zeros((1, 1, 1))
     )
+    field = np.zeros((2, 1, 1), dtype=np.float32)
+    grown = dilate_discs(
+        field, np.ones(2), (np.ones(2, dtype=np.int64), np.ones(2, dtype=np.int64))
+    )
+    WindowStack.make(np.zeros((2, 2)), np.ones((2, 2)), (0.0, 0.0), 1.0, (4, 4)).interval_fields(
+        field, grown, field, np.ones((2, 1, 1), dtype=np.bool_), np.float32(1.0)
+    )
 
 
-def dilate_discs(values: np.ndarray, radii_nodes: np.ndarray) -> np.ndarray:
+def dilate_discs(
+    values: np.ndarray,
+    radii_nodes: np.ndarray,
+    extents: tuple[np.ndarray, np.ndarray] | None = None,
+) -> np.ndarray:
     """Per instant j, the min of ``values[j]`` over the nodes within ``radii_nodes[j]`` (Euclidean)
-    of each node; nodes beyond the array count as +inf. On a field whose zero sublevel set is K,
-    the result's is K grown by that radius (grid dilation)."""
+    of each node; nodes beyond the array count as +inf (``FAR``). On a field whose zero sublevel
+    set is K, the result's is K grown by that radius (grid dilation). With ``extents`` (heights
+    and widths [J]) only instant j's nodes [0, h_j) x [0, w_j) are read and computed, the others
+    counting as and coming out FAR (a window stack's own windows: :meth:`WindowStack.valid`).
+
+    Compiled (``_dilate_discs``): each node takes the minimum with its neighbours in the order of
+    their offsets (row offset, then column offset, increasing), with ``np.minimum``'s choice, so
+    the result is the one of numpy minima taken offset by offset over the whole array."""
     count, height, width = values.shape
-    r = math.floor(float(radii_nodes.max())) if count else 0
-    padded = np.full((count, height + 2 * r, width + 2 * r), FAR, dtype=values.dtype)
-    padded[:, r : r + height, r : r + width] = values
-    out = values.copy()
-    squared = radii_nodes * radii_nodes
-    for dk in range(-r, r + 1):
-        for di in range(-r, r + 1):
-            d2 = dk * dk + di * di
-            if d2 == 0:
-                continue
-            applies = d2 <= squared
-            if not applies.any():
-                continue
-            shifted = padded[:, r + dk : r + dk + height, r + di : r + di + width]
-            if applies.all():
-                np.minimum(out, shifted, out=out)
-            else:
-                rows = np.flatnonzero(applies)
-                out[rows] = np.minimum(out[rows], shifted[rows])
+    r = math.floor(float(np.max(radii_nodes))) if count else 0
+    squared = np.asarray(radii_nodes * radii_nodes, dtype=np.float64)
+    if extents is None:
+        heights, widths = np.full(count, height), np.full(count, width)
+    else:
+        heights, widths = extents
+    return _dilate_discs(  # type: ignore[no-any-return]
+        np.ascontiguousarray(values),
+        squared,
+        r,
+        np.asarray(heights, dtype=np.int64),
+        np.asarray(widths, dtype=np.int64),
+    )
+
+
+@numba.njit(inline="always")
+def _smaller(a: float, b: float) -> float:
+    """``np.minimum(a, b)``: a NaN of either, else the smaller, ``b`` when they are equal."""
+    return a if (a != a or a < b) else b
+
+
+@numba.njit(inline="always")
+def _larger(a: float, b: float) -> float:
+    """``np.maximum(a, b)``: a NaN of either, else the larger, ``b`` when they are equal."""
+    return a if (a != a or a > b) else b
+
+
+@numba.njit(cache=True)
+def _dilate_discs(
+    values: np.ndarray, squared: np.ndarray, r: int, heights: np.ndarray, widths: np.ndarray
+) -> np.ndarray:
+    """``dilate_discs`` with the squared radii ``squared`` [J] (float64), the largest offset ``r``
+    and each instant's extent: node (j, h, w) takes in turn the minimum with each node
+    (h + dk, w + di) of dk^2 + di^2 <= squared[j], FAR beyond the extent."""
+    count, height, width = values.shape
+    padded = np.empty((count, height + 2 * r, width + 2 * r), dtype=values.dtype)
+    padded[:] = FAR
+    out = np.empty_like(values)
+    out[:] = FAR
+    for j in range(count):
+        rows, cols = heights[j], widths[j]
+        padded[j, r : r + rows, r : r + cols] = values[j, :rows, :cols]
+        out[j, :rows, :cols] = values[j, :rows, :cols]
+        for dk in range(-r, r + 1):
+            for di in range(-r, r + 1):
+                d2 = dk * dk + di * di
+                if d2 == 0 or not d2 <= squared[j]:
+                    continue
+                for h in range(rows):
+                    row = out[j, h, :cols]
+                    seen = padded[j, r + dk + h, r + di : r + di + cols]
+                    for w in range(cols):
+                        row[w] = _smaller(row[w], seen[w])
     return out
+
+
+@numba.njit(cache=True)
+def _interval_fields(
+    field: np.ndarray,
+    grown: np.ndarray,
+    interval: np.ndarray,
+    valid: np.ndarray,
+    k0: np.ndarray,
+    i0: np.ndarray,
+    h: np.ndarray,
+    w: np.ndarray,
+    band: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``WindowStack.interval_fields`` on the windows (``k0``, ``i0``, ``h``, ``w``); ``grown`` is
+    overwritten with FAR at the nodes not ``valid``."""
+    count, height, width = field.shape
+    for j in range(count):
+        for row in range(height):
+            for col in range(width):
+                if not valid[j, row, col]:
+                    grown[j, row, col] = FAR
+    sweep = np.empty_like(field)
+    sweep[0] = field[0]
+    held = np.zeros(count, dtype=np.bool_)
+    near = np.empty((height, width), dtype=field.dtype)
+    for j in range(1, count):
+        dk, di = k0[j] - k0[j - 1], i0[j] - i0[j - 1]
+        inside_ok, edge_ok = True, True
+        for row in range(height):
+            for col in range(width):
+                rr, cc = row + dk, col + di
+                before = grown[j - 1, rr, cc] if 0 <= rr < h[j - 1] and 0 <= cc < w[j - 1] else FAR
+                value = _smaller(grown[j, row, col], before)
+                near[row, col] = value
+                polygon = interval[j, row, col]
+                if valid[j, row, col]:
+                    inside_ok &= not polygon <= 0 or value <= 0
+                    edge_ok &= not abs(polygon) <= band or near[row, col] <= polygon
+                sweep[j, row, col] = _larger(near[row, col], polygon)
+        held[j] = inside_ok and edge_ok
+    for j in range(count):
+        for row in range(height):
+            for col in range(width):
+                if not valid[j, row, col]:
+                    sweep[j, row, col] = FAR
+    return sweep, held

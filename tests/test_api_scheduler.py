@@ -19,6 +19,7 @@ from models.runtime import ValueModel
 from models.value_fields import engine_for
 from reach.engine import FRTEngine
 from reach.frames import Pose
+from service.runtime.demand import ExactDemand
 from service.runtime.exact_worker import ExactTask, start_pool
 from service.runtime.metrics import Metrics
 from service.runtime.scheduler import EXACT_OLDEST_AFTER_S, FRTKey, FRTScheduler, LRUCache
@@ -352,3 +353,34 @@ def test_a_broken_worker_pool_falls_back_to_threads() -> None:
         assert s.refinement is None  # on threads refinements would hold the event loop's GIL
     finally:
         s.shutdown()
+
+
+def test_demanded_agents_sets_start_before_the_others(scheduler: FRTScheduler) -> None:
+    """Queued sets of agents a check came near go first (newest first among them); the rest
+    after, by the usual rule."""
+    scheduler.demand = ExactDemand(hold_s=60.0, size=16)
+    scheduler.demand.note(["near-1", "near-2"])
+    gate = threading.Event()
+    order: list[str] = []
+    scheduler.submit(key("busy", 1), lambda: gate.wait(5))
+    for agent in ("near-1", "far-1", "near-2", "far-2"):
+        scheduler.submit(key(agent, 1), lambda agent=agent: order.append(agent))
+    last = scheduler.submit(key("far-3", 1), lambda: order.append("far-3"))
+    gate.set()
+    last.result(5)
+    for agent in ("far-1", "far-2"):
+        scheduler.submit(key(agent, 1), lambda: None).result(5)
+    assert order == ["near-2", "near-1", "far-3", "far-2", "far-1"]
+    starts = scheduler._metrics.exact_set_starts
+    assert starts.labels("demanded")._value.get() == 2
+    assert starts.labels("background")._value.get() >= 3
+
+
+def test_demand_expires_and_is_bounded() -> None:
+    demand = ExactDemand(hold_s=1.0, size=2)
+    demand.note(["a"], now=10.0)
+    assert demand.wants("a", now=10.5) and not demand.wants("a", now=11.0)
+    demand.note(["b", "c"], now=10.0)  # "a" is the oldest noted: dropped past the size
+    assert not demand.wants("a", now=10.5) and demand.wants("c", now=10.5)
+    demand.forget("c")
+    assert not demand.wants("c", now=10.5)

@@ -14,6 +14,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
+from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import lru_cache
@@ -504,7 +505,27 @@ def _respond_all(
                 horizon_end=state.timestamp + horizon,
             )
         )
+    _note_demand(services, results, clearance.min(axis=1))
     return results
+
+
+def _note_demand(
+    services: Services, results: Sequence[CollisionCheckResponse], least: np.ndarray
+) -> None:
+    """Count the answers by verdict, and demand the exact sets of the agents whose answer they
+    would change or nearly (``service.runtime.demand``): a conservative verdict, or a least
+    clearance from the exact set below ``exact_demand_margin_m``."""
+    verdicts = Counter(r.verdict for r in results)
+    for verdict, count in verdicts.items():
+        services.metrics.check_verdicts.labels(verdict).inc(count)
+    margin = services.settings.exact_demand_margin_m
+    near = [
+        r.agent_id
+        for r, clearance in zip(results, least.tolist(), strict=True)
+        if r.verdict == "conservative" or (not r.conservative and clearance < margin)
+    ]
+    if near:
+        services.demand.note(near)
 
 
 async def check_agent(

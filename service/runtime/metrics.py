@@ -19,6 +19,7 @@ class Metrics:
         self.registry = CollectorRegistry()
         self._define_latencies(self.registry)
         self._define_sets(self.registry)
+        self._define_demand(self.registry)
         self._define_answers(self.registry)
         self._define_audit(self.registry)
 
@@ -91,6 +92,23 @@ class Metrics:
         )
         self.frt_failures = Counter(
             "frt_exact_failures", "Exact-FRT computations that raised", registry=r
+        )
+
+    def _define_demand(self, r: CollectorRegistry) -> None:
+        """What demand-driven exact sets do: which sets start first, and the answers' verdicts."""
+        self.exact_set_starts = Counter(
+            "frt_exact_set_starts",
+            "Exact sets handed to a worker, by priority: demanded (a planner's recent check came "
+            "near the agent's set: service.runtime.demand) or background",
+            ["priority"],
+            registry=r,
+        )
+        self.check_verdicts = Counter(
+            "frt_check_verdicts",
+            "Per-agent collision answers by verdict: exact (from the exact set), decision_exact "
+            "(from a set containing it that the trajectory clears) or conservative",
+            ["verdict"],
+            registry=r,
         )
 
     def _define_answers(self, r: CollectorRegistry) -> None:

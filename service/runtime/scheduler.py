@@ -32,6 +32,7 @@ from concurrent.futures import BrokenExecutor, CancelledError, Executor, Future,
 from dataclasses import dataclass, field
 from typing import Any
 
+from service.runtime.demand import ExactDemand
 from service.runtime.metrics import Metrics
 from service.runtime.refiner import Refinement, RefinementQueue, RefinementRule
 
@@ -171,6 +172,8 @@ class FRTScheduler:
         self._discard: set[FRTKey] = set()  # running for a forgotten agent: do not cache
         self._refinements = RefinementQueue(metrics, remembered=cache_size)
         self._lock = threading.RLock()  # done-callbacks may run inline in submit()
+        #: The agents whose queued sets start first (None: the newest first, whoever's).
+        self.demand: ExactDemand | None = None
 
     @property
     def workers(self) -> int:
@@ -375,9 +378,7 @@ class FRTScheduler:
                 if not self._queue:
                     self._dispatch_refinements()
                     return
-                oldest = next(iter(self._queue.values()))
-                waited = time.perf_counter() - self._pending[oldest].submitted
-                _, key = self._queue.popitem(last=waited < EXACT_OLDEST_AFTER_S)
+                key = self._next_queued()
                 job = self._pending[key]
                 if not job.future.set_running_or_notify_cancel():
                     del self._pending[key]
@@ -394,6 +395,21 @@ class FRTScheduler:
                     handle = Future()
                     handle.set_exception(exc)
             handle.add_done_callback(functools.partial(self._finished, key))
+
+    def _next_queued(self) -> FRTKey:
+        """Take the next queued set (lock held, queue not empty): of the demanded agents'
+        (:attr:`demand`) if any is queued, else of all; among them the newest, or the oldest once
+        it has waited ``EXACT_OLDEST_AFTER_S``."""
+        demand = self.demand
+        slots = list(self._queue)
+        if demand is not None:
+            wanted = [s for s in slots if self._queue[s].agent_id and demand.wants(s)]
+            priority = "demanded" if wanted else "background"
+            self._metrics.exact_set_starts.labels(priority).inc()
+            slots = wanted or slots
+        oldest = self._queue[slots[0]]
+        waited = time.perf_counter() - self._pending[oldest].submitted
+        return self._queue.pop(slots[0] if waited >= EXACT_OLDEST_AFTER_S else slots[-1])
 
     def _dispatch_refinements(self) -> None:
         """Start queued refinements (``RefinementQueue.next``) on free workers, keeping one worker

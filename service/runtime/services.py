@@ -24,6 +24,7 @@ from reach.sets import FRTSet
 from reach.union import conservative_union
 from service.runtime.answer_cost import AnswerCosts
 from service.runtime.audit import AuditLedger, RollingCoverage, Scored, count_audited, score
+from service.runtime.demand import ExactDemand
 from service.runtime.exact_worker import ExactTask
 from service.runtime.jobs import FRTJob, job_for
 from service.runtime.memory import freeze_start_up_objects, keep_freed_memory
@@ -64,6 +65,8 @@ class Services:
     tubes: TubeBuilder = field(default_factory=TubeBuilder, repr=False)
     #: Holds observations' numerical work back while collision checks are in flight.
     priority: ChecksFirst = field(default_factory=ChecksFirst, repr=False)
+    #: The agents whose exact sets change planners' answers: built first.
+    demand: ExactDemand = field(default_factory=lambda: ExactDemand(1.0, 4096), repr=False)
     #: Which tubes each agent's checks ask for: the workers draw those (``frt_draw_tubes``).
     tube_demand: TubeDemand = field(default_factory=lambda: TubeDemand(4096), repr=False)
     #: Whether worker processes draw the tubes checks ask for before sending a set back
@@ -82,7 +85,11 @@ class Services:
         scheduler = FRTScheduler(
             workers=settings.frt_workers, cache_size=settings.frt_cache_size, metrics=metrics
         )
+        demand = ExactDemand(settings.exact_demand_s, settings.max_agents)
+        if settings.exact_demand_s > 0:
+            scheduler.demand = demand
         return cls(
+            demand=demand,
             settings=settings,
             metrics=metrics,
             store=store,
@@ -148,6 +155,7 @@ class Services:
         self.scheduler.forget(agent_id)
         self.conservative_cache.forget(agent_id)
         self.tube_demand.forget(agent_id)
+        self.demand.forget(agent_id)
         self.audit.forget(agent_id)
 
     def score_position(self, agent_id: str, x: float, y: float, t: float) -> list[Scored]:

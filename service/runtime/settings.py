@@ -93,6 +93,11 @@ class Settings(BaseSettings):
     deadline_wait_fraction: float = Field(0.6, ge=0.0, le=1.0)
     #: ... and never into the deadline's last milliseconds, kept to answer conservatively.
     deadline_reserve_ms: float = Field(1.0, ge=0.0)
+    #: Exact sets start first for agents a check came near within this many seconds
+    #: (``service.runtime.demand``; 0: newest first, whoever's) ...
+    exact_demand_s: float = Field(1.0, ge=0.0)
+    #: ... near: a conservative verdict, or a clearance from the exact set below this (metres).
+    exact_demand_margin_m: float = Field(2.0, ge=0.0)
     #: How long contours and the stateless endpoint wait for an exact set before going conservative.
     exact_timeout_s: float = Field(5.0, gt=0.0)
     #: Agents one multi-agent collision check may name (or find, when it asks for all of them).

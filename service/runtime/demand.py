@@ -1,0 +1,46 @@
+"""Which agents' exact sets change planners' answers: the exact sets to build first.
+
+A check whose trajectory clears an agent's conservative set has the exact set's verdict without it
+(the exact set lies inside); an exact set changes an answer only for an agent whose set a planner's
+trajectory comes near. Checks note such agents here (``service.flows.checks``: a conservative
+verdict, or a clearance from the exact set below the margin) for ``hold_s`` seconds; the scheduler
+starts their queued sets before any other (``service.runtime.scheduler``), and the rest as the
+workers allow.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterable
+
+
+class ExactDemand:
+    """Agents a planner's recent trajectories came near, each until a time."""
+
+    def __init__(self, hold_s: float, size: int) -> None:
+        #: How long one check keeps an agent demanded.
+        self.hold_s = hold_s
+        self._size = size
+        self._until: dict[str, float] = {}
+        self._lock = threading.Lock()
+
+    def note(self, agent_ids: Iterable[str], now: float | None = None) -> None:
+        """Demand ``agent_ids`` from ``now`` for :attr:`hold_s` seconds."""
+        until = (time.perf_counter() if now is None else now) + self.hold_s
+        with self._lock:
+            for agent_id in agent_ids:
+                self._until.pop(agent_id, None)  # re-inserted: the dict stays in expiry order
+                self._until[agent_id] = until
+            while len(self._until) > self._size:
+                self._until.pop(next(iter(self._until)))
+
+    def wants(self, agent_id: str, now: float | None = None) -> bool:
+        """Whether a check came near ``agent_id`` within the last :attr:`hold_s` seconds."""
+        with self._lock:
+            until = self._until.get(agent_id)
+        return until is not None and (time.perf_counter() if now is None else now) < until
+
+    def forget(self, agent_id: str) -> None:
+        with self._lock:
+            self._until.pop(agent_id, None)

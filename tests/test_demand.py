@@ -1,0 +1,82 @@
+"""Demand-driven exact sets: checks mark the agents whose exact sets change planners' answers
+(service.runtime.demand, service.flows.checks), and answers are counted by verdict."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from fastapi.testclient import TestClient
+
+from service.runtime.settings import Settings
+from tests.fixtures.payloads import observation
+from tests.test_api_errors import client_for
+
+
+@pytest.fixture(scope="module")
+def client(analytic_model_path: Path) -> Iterator[TestClient]:
+    yield from client_for(Settings(model_path=analytic_model_path, log_requests=False))
+
+
+def _verdicts(client: TestClient) -> dict[str, float]:
+    out = {}
+    for line in client.get("/metrics").text.splitlines():
+        if line.startswith("frt_check_verdicts_total{"):
+            name = line.split('verdict="')[1].split('"')[0]
+            out[name] = float(line.rsplit(" ", 1)[1])
+    return out
+
+
+def test_a_check_near_an_agent_demands_its_exact_sets_and_a_far_one_does_not(
+    client: TestClient,
+) -> None:
+    for agent, y in (("near", 0.0), ("far", 400.0)):
+        answer = client.post(
+            f"/v1/agents/{agent}/observations",
+            params={"wait_frt_ms": 5000},
+            json=observation(1.0, y=y),
+        )
+        assert answer.json()["frt_ready"]
+    before = _verdicts(client)
+    # Along the near car's lane, 5-25 m ahead of it: through its set, 400 m from the far one's.
+    trajectory = [{"t": 1.0 + 0.1 * i, "x": 5.0 + i, "y": 0.0} for i in range(20)]
+    answer = client.post(
+        "/v1/collision-check",
+        json={"trajectory": trajectory, "agent_ids": ["near", "far"], "deadline_ms": 5000},
+    ).json()
+    verdicts = {r["agent_id"]: r["verdict"] for r in answer["results"]}
+    assert verdicts == {"near": "exact", "far": "exact"}
+    demand = client.app.state.services.demand  # type: ignore[attr-defined]
+    assert demand.wants("near") and not demand.wants("far")
+    assert client.app.state.services.scheduler.demand is demand  # type: ignore[attr-defined]
+    after = _verdicts(client)
+    assert after.get("exact", 0.0) == before.get("exact", 0.0) + 2
+
+
+def test_a_check_within_the_margin_demands_and_one_beyond_it_does_not(
+    client: TestClient,
+) -> None:
+    client.post(
+        "/v1/agents/edge/observations",
+        params={"wait_frt_ms": 5000},
+        json=observation(1.0, y=-100.0, speed=0.0),
+    )
+    services = client.app.state.services  # type: ignore[attr-defined]
+    margin = services.settings.exact_demand_margin_m
+
+    def clearance_at(y: float) -> float:
+        body = {"trajectory": [{"t": 1.5, "x": 0.0, "y": y}], "deadline_ms": 5000}
+        return client.post("/v1/agents/edge/collision-check", json=body).json()["clearance"][0]
+
+    # A parked car's C is a disc-like set around it: walk outwards until clear by margin + 1 m.
+    services.demand.forget("edge")
+    y = -100.0
+    while clearance_at(y) < margin + 1.0:
+        y += 0.5
+    services.demand.forget("edge")
+    assert clearance_at(y) >= margin and not services.demand.wants("edge")
+    y_inside = y
+    while clearance_at(y_inside) >= margin - 0.5:
+        y_inside -= 0.25
+    assert services.demand.wants("edge")

@@ -93,6 +93,8 @@ def trajectory_surrogates_of(
     same least value and first value below the set's threshold per trajectory, the signed
     distances computed only where those need them."""
     xy_world = np.asarray(xy_world, dtype=float).reshape(-1, 2)
+    if not sets:
+        return []
     n = xy_world.shape[0]
     x, y = human_frames(xy_world, [s.pose for s in sets])
     out = []

@@ -9,7 +9,13 @@ import time
 
 import pytest
 
-from service.runtime.stores import AgentState, AgentStore, InMemoryAgentStore, StoreFullError
+from service.runtime.stores import (
+    AgentState,
+    AgentStore,
+    InMemoryAgentStore,
+    StoreFullError,
+    UpdateFn,
+)
 from service.wire.errors import StaleTimestampError
 
 
@@ -163,3 +169,89 @@ def test_concurrent_updates_of_one_agent_lose_nothing() -> None:
     for t in pool:
         t.join()
     assert asyncio.run(store.get("a")).frt_version == 1 + threads * per_thread  # type: ignore[union-attr]
+
+
+def test_update_many_is_update_of_each_agent() -> None:
+    """One pass over a frame's agents: each agent's update as ``update`` would make it, the
+    refused ones (stale, full, their function's APIError) answered in place and unchanged."""
+    from service.wire.errors import FieldError
+
+    clock = FakeClock()
+    store = InMemoryAgentStore(ttl_s=10, max_agents=4, clock=clock)
+    put(store, "old", 5.0)
+    put(store, "bad", 1.0)
+    put(store, "keep", 1.0)
+
+    def refuse(_: AgentState | None) -> AgentState:
+        raise FieldError("prediction", "refused")
+
+    def next_of(agent_id: str, timestamp: float) -> UpdateFn:
+        return lambda prev: state(agent_id, timestamp, prev.frt_version + 1 if prev else 1)
+
+    before = asyncio.run(store.get_many(["old", "bad"]))
+    clock.now += 6
+    results = asyncio.run(
+        store.update_many(
+            [
+                ("keep", next_of("keep", 2.0), 2.0),
+                ("old", next_of("old", 4.0), 4.0),  # stale
+                ("bad", refuse, 2.0),
+                ("new", next_of("new", 2.0), 2.0),
+                ("full", next_of("full", 2.0), 2.0),  # the fifth agent
+            ]
+        )
+    )
+    assert [type(r).__name__ for r in results] == [
+        "AgentState", "StaleTimestampError", "FieldError", "AgentState", "StoreFullError",
+    ]  # fmt: skip
+    assert results[0] == state("keep", 2.0, 2) and results[3] == state("new", 2.0, 1)
+    assert results[1].status == 409 and results[1].last == 5.0  # type: ignore[union-attr]
+    assert asyncio.run(store.get_many(["old", "bad", "full"])) == [*before, None]
+    clock.now += 6  # only the agents written by the batch had their TTL refreshed
+    assert sorted(asyncio.run(store.ids())) == ["keep", "new"]
+    with pytest.raises(ValueError):
+        asyncio.run(store.update_many([("a", next_of("a", 1.0), None)] * 2))
+
+
+def test_update_many_writes_nothing_when_a_function_fails_unexpectedly() -> None:
+    store = InMemoryAgentStore(ttl_s=60, max_agents=10)
+
+    def broken(_: AgentState | None) -> AgentState:
+        raise RuntimeError("a bug")
+
+    with pytest.raises(RuntimeError):
+        asyncio.run(store.update_many([("a", lambda _: state("a", 1.0), 1.0), ("b", broken, 1.0)]))
+    assert asyncio.run(store.count()) == 0
+
+
+def test_update_many_and_updates_of_the_same_agents_lose_nothing() -> None:
+    store = InMemoryAgentStore(ttl_s=60, max_agents=10)
+    ids = ["a", "b", "c"]
+    for agent_id in ids:
+        put(store, agent_id, 0.0)
+
+    def bump(previous: AgentState | None) -> AgentState:
+        assert previous is not None
+        seen = previous.frt_version
+        time.sleep(0.0001)
+        previous.frt_version = seen + 1
+        return previous
+
+    def frames(order: list[str]) -> None:
+        for _ in range(20):
+            asyncio.run(store.update_many([(agent_id, bump, None) for agent_id in order]))
+
+    def singles() -> None:
+        for _ in range(20):
+            for agent_id in ids:
+                asyncio.run(store.update(agent_id, bump))
+
+    pool = [threading.Thread(target=frames, args=(ids,)), threading.Thread(target=singles)]
+    pool.append(threading.Thread(target=frames, args=(ids[::-1],)))  # another order: no deadlock
+    for t in pool:
+        t.start()
+    for t in pool:
+        t.join(timeout=30)
+    assert not any(t.is_alive() for t in pool)
+    got = asyncio.run(store.get_many(ids))
+    assert [s.frt_version for s in got] == [1 + 3 * 20] * 3  # type: ignore[union-attr]

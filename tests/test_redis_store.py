@@ -344,6 +344,93 @@ def test_two_replicas_with_timestamps_keep_every_accepted_one(redis_server: Redi
     run(go())
 
 
+def test_update_many_is_update_of_each_agent(redis_server: RedisServer) -> None:
+    """One read and one script for a frame's agents: each written as ``update`` writes it, the
+    refused ones (stale, full, their function's APIError) answered in place and unchanged."""
+
+    def fail(_current: AgentState | None) -> AgentState:
+        raise FieldError("prediction.cov.0", "not positive definite")
+
+    async def go() -> None:
+        store = make(redis_server, max_agents=4)
+        await store.update("old", put(state("old", 5.0)), timestamp=5.0)
+        await store.update("bad", put(state("bad", 1.0)), timestamp=1.0)
+        results = await store.update_many(
+            [
+                ("keep", put(state("keep", 2.0)), 2.0),
+                ("old", put(state("old", 4.0)), 4.0),
+                ("bad", fail, 2.0),
+                ("new", put(state("new", 2.0)), 2.0),
+                ("full", put(state("full", 2.0)), 2.0),
+            ]
+        )
+        assert [type(r).__name__ for r in results] == [
+            "AgentState", "StaleTimestampError", "FieldError", "AgentState", "StoreFullError",
+        ]  # fmt: skip
+        assert results[0] == state("keep", 2.0) and results[3] == state("new", 2.0)
+        assert results[1].last == 5.0  # type: ignore[union-attr]
+        got = await store.get_many(["keep", "old", "bad", "new", "full"])
+        assert got == [state("keep", 2.0), state("old", 5.0), state("bad", 1.0), results[3], None]
+        assert await store.count() == 4
+        with pytest.raises(ValueError):
+            await store.update_many([("a", put(state("a", 1.0)), None)] * 2)
+        await store.close()
+
+    run(go())
+
+
+def test_update_many_against_another_replica_loses_nothing(redis_server: RedisServer) -> None:
+    """Frames on one replica, single updates of the same agents on another: an agent the other
+    replica wrote between the frame's read and its script is updated again on its own."""
+
+    async def go() -> None:
+        first = make(redis_server)
+        second = make(redis_server, prefix=first._prefix)
+        ids = [f"a{i}" for i in range(5)]
+        rounds = 40
+
+        async def frames() -> None:
+            for _ in range(rounds):
+                await first.update_many([(a, lambda cur, a=a: bump(cur, a), None) for a in ids])
+
+        async def singles() -> None:
+            for _ in range(rounds):
+                for a in ids:
+                    await second.update(a, lambda cur, a=a: bump(cur, a))
+
+        await asyncio.gather(frames(), singles())
+        final = await first.get_many(ids)
+        assert [s.config["n"] for s in final] == [2 * rounds] * len(ids)
+        print(f"\n{first.conflicts + second.conflicts} CAS retries")
+        await first.close()
+        await second.close()
+
+    run(go())
+
+
+def test_update_many_with_a_lost_reply_applies_each_agent_once(redis_server: RedisServer) -> None:
+    import redis.exceptions
+
+    async def go() -> None:
+        store = make(redis_server)
+        await store.update("a", bump)
+        real = store._update_many_script
+
+        async def applied_then_disconnected(**kwargs: Any) -> Any:
+            await real(**kwargs)
+            raise redis.exceptions.ConnectionError("connection lost after EVALSHA")
+
+        store._update_many_script = applied_then_disconnected
+        results = await store.update_many(
+            [("a", bump, None), ("b", lambda cur: bump(cur, "b"), None)]
+        )
+        assert [r.config["n"] for r in results] == [2, 1]  # type: ignore[union-attr]
+        assert [s.config["n"] for s in await store.get_many(["a", "b"])] == [2, 1]
+        await store.close()
+
+    run(go())
+
+
 def test_a_lost_reply_is_not_applied_twice(redis_server: RedisServer) -> None:
     import redis.exceptions
 

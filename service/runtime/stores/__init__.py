@@ -4,13 +4,20 @@
 from __future__ import annotations
 
 from service.runtime.stores.memory import InMemoryAgentStore
-from service.runtime.stores.state import AgentState, AgentStore, StoreFullError, UpdateFn
+from service.runtime.stores.state import (
+    AgentState,
+    AgentStore,
+    StoreFullError,
+    Update,
+    UpdateFn,
+)
 
 __all__ = [
     "AgentState",
     "AgentStore",
     "InMemoryAgentStore",
     "StoreFullError",
+    "Update",
     "UpdateFn",
     "make_store",
 ]

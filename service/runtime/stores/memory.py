@@ -6,11 +6,11 @@ import pickle
 import threading
 import time
 from collections import OrderedDict
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-from service.runtime.stores.state import AgentState, StoreFullError, UpdateFn
-from service.wire.errors import StaleTimestampError
+from service.runtime.stores.state import AgentState, StoreFullError, Update, UpdateFn
+from service.wire.errors import APIError, StaleTimestampError
 
 
 @dataclass
@@ -78,27 +78,58 @@ class InMemoryAgentStore:
     async def update(
         self, agent_id: str, fn: UpdateFn, *, timestamp: float | None = None
     ) -> AgentState:
-        lock = self._acquire(agent_id)
+        (result,) = await self.update_many([(agent_id, fn, timestamp)])
+        if isinstance(result, APIError):
+            raise result
+        return result
+
+    async def update_many(self, updates: Sequence[Update]) -> list[AgentState | APIError]:
+        """Every agent's lock is held (taken in id order) while its state is read, its function
+        run and its new state written: per agent one atomic step."""
+        ids = [agent_id for agent_id, _, _ in updates]
+        if len(set(ids)) != len(ids):
+            raise ValueError("update_many: an agent appears twice")
+        locks = [(agent_id, self._acquire(agent_id)) for agent_id in sorted(ids)]
         try:
             with self._lock:
                 self._purge_expired()
-                entry = self._entries.get(agent_id)
-            current = None if entry is None else entry.state()
+                entries = [self._entries.get(agent_id) for agent_id in ids]
+            built = [
+                self._next(update, entry) for update, entry in zip(updates, entries, strict=True)
+            ]
+            with self._lock:
+                results = [
+                    self._write(agent_id, data) if isinstance(data, bytes) else data
+                    for agent_id, data in zip(ids, built, strict=True)
+                ]
+            return [pickle.loads(r) if isinstance(r, bytes) else r for r in results]
+        finally:
+            for agent_id, lock in reversed(locks):
+                self._release(agent_id, lock)
+
+    @staticmethod
+    def _next(update: Update, entry: _Entry | None) -> bytes | APIError:
+        """The agent's next state, pickled, or why it is refused (called under its lock)."""
+        agent_id, fn, timestamp = update
+        current = None if entry is None else entry.state()
+        try:
             if timestamp is not None and current is not None and timestamp <= current.timestamp:
                 raise StaleTimestampError(agent_id, timestamp, current.timestamp)
             # fn gets a copy: a half-applied change it raises on never leaks into the store.
-            new = fn(current)
-            data = _pickled(new)
-            with self._lock:
-                if agent_id not in self._entries:
-                    self._purge_expired()
-                    if len(self._entries) >= self._max_agents:
-                        raise StoreFullError(self._max_agents)
-                self._entries.pop(agent_id, None)
-                self._entries[agent_id] = _Entry(data, self._clock() + self._ttl_s)
-            return pickle.loads(data)  # type: ignore[no-any-return]
-        finally:
-            self._release(agent_id, lock)
+            return _pickled(fn(current))
+        except APIError as exc:
+            return exc
+
+    def _write(self, agent_id: str, data: bytes) -> bytes | APIError:
+        """Store ``data`` as the agent's state with a fresh TTL, unless a new agent does not fit
+        (called with ``_lock`` held)."""
+        if agent_id not in self._entries:
+            self._purge_expired()
+            if len(self._entries) >= self._max_agents:
+                return StoreFullError(self._max_agents)
+        self._entries.pop(agent_id, None)
+        self._entries[agent_id] = _Entry(data, self._clock() + self._ttl_s)
+        return data
 
     async def delete(self, agent_id: str) -> bool:
         lock = self._acquire(agent_id)

@@ -29,12 +29,13 @@ or Sentinel), not Redis Cluster.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import hashlib
 import json
 import math
 import random
 import time
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Sequence
 from typing import TypeVar
 
 from redis import exceptions as redis_errors
@@ -42,7 +43,7 @@ from redis.asyncio import BlockingConnectionPool, Redis
 from redis.asyncio.retry import Retry
 from redis.backoff import NoBackoff
 
-from service.runtime.stores import AgentState, StoreFullError, UpdateFn
+from service.runtime.stores import AgentState, StoreFullError, Update, UpdateFn
 from service.wire.errors import APIError, ServiceUnavailableError, StaleTimestampError
 
 T = TypeVar("T")
@@ -55,30 +56,57 @@ _UNAVAILABLE = (
     redis_errors.TryAgainError,
 )
 
-# KEYS: agent key, index key. ARGV: agent id, SHA-1 of the value read ('' = none), new value,
-# TTL in ms, max agents, new timestamp ('' = no check). Returns 'ok', 'conflict', 'stale' or 'full'.
-_UPDATE_LUA = """
+# One agent's compare-and-set: the stored value must be the one read (its SHA-1, '' = none), the new
+# timestamp ('' = no check) later than the stored one's, a new agent must fit under max_agents;
+# then the new value is written with its TTL and the index updated. Returns 'ok', 'conflict',
+# 'stale' or 'full'.
+_UPDATE_ONE_LUA = """
+local function update_one(key, index, id, sha, value, ttl, max_agents, timestamp, now)
+  local cur = redis.call('GET', key)
+  if cur then
+    if redis.sha1hex(cur) ~= sha then return 'conflict' end
+    if timestamp ~= '' and tonumber(timestamp) <= tonumber(cjson.decode(cur)['timestamp']) then
+      return 'stale'
+    end
+  else
+    if sha ~= '' then return 'conflict' end
+    redis.call('ZREMRANGEBYSCORE', index, '-inf', now)
+    if redis.call('ZSCORE', index, id) == false and redis.call('ZCARD', index) >= max_agents then
+      return 'full'
+    end
+  end
+  redis.call('SET', key, value, 'PX', ttl)
+  redis.call('ZADD', index, now + ttl, id)
+  return 'ok'
+end
 local t = redis.call('TIME')
 local now = tonumber(t[1]) * 1000 + math.floor(tonumber(t[2]) / 1000)
-local cur = redis.call('GET', KEYS[1])
-if cur then
-  if redis.sha1hex(cur) ~= ARGV[2] then return 'conflict' end
-  if ARGV[6] ~= '' and tonumber(ARGV[6]) <= tonumber(cjson.decode(cur)['timestamp']) then
-    return 'stale'
-  end
-else
-  if ARGV[2] ~= '' then return 'conflict' end
-  redis.call('ZREMRANGEBYSCORE', KEYS[2], '-inf', now)
-  if redis.call('ZSCORE', KEYS[2], ARGV[1]) == false
-     and redis.call('ZCARD', KEYS[2]) >= tonumber(ARGV[5]) then
-    return 'full'
-  end
-end
-local ttl = tonumber(ARGV[4])
-redis.call('SET', KEYS[1], ARGV[3], 'PX', ttl)
-redis.call('ZADD', KEYS[2], now + ttl, ARGV[1])
-return 'ok'
 """
+
+# KEYS: agent key, index key. ARGV: agent id, SHA-1 of the value read ('' = none), new value,
+# TTL in ms, max agents, new timestamp ('' = no check). Returns update_one's outcome.
+_UPDATE_LUA = (
+    _UPDATE_ONE_LUA
+    + """
+return update_one(KEYS[1], KEYS[2], ARGV[1], ARGV[2], ARGV[3], tonumber(ARGV[4]),
+                  tonumber(ARGV[5]), ARGV[6], now)
+"""
+)
+
+# KEYS: index key, then one agent key per agent. ARGV: TTL in ms, max agents, then per agent its
+# id, SHA-1 read, new value and timestamp. Returns update_one's outcome per agent, in order.
+_UPDATE_MANY_LUA = (
+    _UPDATE_ONE_LUA
+    + """
+local ttl, max_agents, out = tonumber(ARGV[1]), tonumber(ARGV[2]), {}
+for i = 2, #KEYS do
+  local a = 3 + (i - 2) * 4
+  out[i - 1] = update_one(KEYS[i], KEYS[1], ARGV[a], ARGV[a + 1], ARGV[a + 2], ttl, max_agents,
+                          ARGV[a + 3], now)
+end
+return out
+"""
+)
 
 # KEYS: agent key, index key. ARGV: agent id. Returns the number of agent keys deleted (0 or 1).
 _DELETE_LUA = """
@@ -179,6 +207,7 @@ class RedisAgentStore:
         )
         self._redis: Redis = Redis.from_pool(pool)
         self._update_script = self._redis.register_script(_UPDATE_LUA)
+        self._update_many_script = self._redis.register_script(_UPDATE_MANY_LUA)
         self._delete_script = self._redis.register_script(_DELETE_LUA)
         self._live_script = self._redis.register_script(_LIVE_LUA)
         #: Compare-and-set attempts refused because another writer got there first (for tests
@@ -217,12 +246,84 @@ class RedisAgentStore:
             if lock.users == 0:
                 del self._agent_locks[agent_id]
 
+    async def update_many(self, updates: Sequence[Update]) -> list[AgentState | APIError]:
+        """One read of every agent (``MGET``) and one script writing them all, each agent's
+        compare-and-set as :meth:`update`'s; an agent another writer got to first, or whose write
+        Redis did not confirm, is then updated on its own as :meth:`update` does."""
+        ids = [agent_id for agent_id, _, _ in updates]
+        if len(set(ids)) != len(ids):
+            raise ValueError("update_many: an agent appears twice")
+        locks = [self._agent_locks.setdefault(agent_id, _CountedLock()) for agent_id in ids]
+        for lock in locks:
+            lock.users += 1
+        try:
+            async with contextlib.AsyncExitStack() as stack:
+                for agent_id in sorted(ids):  # in id order: batches never wait on each other
+                    await stack.enter_async_context(self._agent_locks[agent_id].lock)
+                return await self._compare_and_set_many(updates)
+        finally:
+            for agent_id, lock in zip(ids, locks, strict=True):
+                lock.users -= 1
+                if lock.users == 0:
+                    del self._agent_locks[agent_id]
+
+    async def _compare_and_set_many(self, updates: Sequence[Update]) -> list[AgentState | APIError]:
+        keys = [self.key(agent_id) for agent_id, _, _ in updates]
+        raws = await self._call(lambda: self._redis.mget(keys))
+        results: list[AgentState | APIError | None] = [None] * len(updates)
+        sent: list[tuple[int, str | None, str]] = []  # (index, value read, value sent)
+        for i, ((agent_id, fn, timestamp), raw) in enumerate(zip(updates, raws, strict=True)):
+            current = None if raw is None else decode_state(raw)
+            try:
+                if timestamp is not None and current is not None and timestamp <= current.timestamp:
+                    raise StaleTimestampError(agent_id, timestamp, current.timestamp)
+                sent.append((i, raw, encode_state(fn(current))))
+            except APIError as exc:
+                results[i] = exc
+        outcomes = await self._write_many(updates, sent)
+        for (i, _, new_raw), outcome in zip(sent, outcomes, strict=True):
+            if outcome == "ok":
+                results[i] = decode_state(new_raw)
+            elif outcome == "full":
+                results[i] = StoreFullError(self._max_agents)
+            else:  # another writer first, or no answer: this agent alone, as update does
+                if outcome is not None:
+                    self.conflicts += 1
+                agent_id, fn, timestamp = updates[i]
+                unconfirmed = new_raw if outcome is None else None
+                try:
+                    results[i] = await self._compare_and_set(agent_id, fn, timestamp, unconfirmed)
+                except APIError as exc:
+                    results[i] = exc
+        return results  # type: ignore[return-value]
+
+    async def _write_many(
+        self, updates: Sequence[Update], sent: list[tuple[int, str | None, str]]
+    ) -> list[str | None]:
+        """The batch script's outcome per agent sent; None for each if Redis did not answer."""
+        if not sent:
+            return []
+        args: list[object] = [self._ttl_ms, self._max_agents]
+        for i, raw, new_raw in sent:
+            agent_id, _, timestamp = updates[i]
+            sha = "" if raw is None else _sha1(raw)
+            args += [agent_id, sha, new_raw, "" if timestamp is None else repr(float(timestamp))]
+        keys = [self._index, *(self.key(updates[i][0]) for i, _, _ in sent)]
+        try:
+            return list(await self._update_many_script(keys=keys, args=args))
+        except _UNAVAILABLE:
+            return [None] * len(sent)
+
     async def _compare_and_set(
-        self, agent_id: str, fn: UpdateFn, timestamp: float | None
+        self,
+        agent_id: str,
+        fn: UpdateFn,
+        timestamp: float | None,
+        unconfirmed: str | None = None,
     ) -> AgentState:
+        """``unconfirmed``: the value this update sent when the connection failed before Redis
+        answered (a batch's, or this loop's own)."""
         key = self.key(agent_id)
-        #: The value this update sent when the connection failed before Redis answered.
-        unconfirmed: str | None = None
         deadline = time.monotonic() + self._unavailable_wait_s
         attempt = 0
         while True:

@@ -2,13 +2,14 @@
 
 The one write path is :meth:`AgentStore.update`: an atomic read-modify-write of one agent under that
 agent's lock, with the timestamp check of API.md ("timestamps must increase per agent", 409) done by
-the store itself. Agent state is a plain dataclass of JSON types (``to_dict``/``from_dict``) so any
+the store itself; :meth:`AgentStore.update_many` is that update of each of several agents in one
+pass (one frame of observations). Agent state is a plain dataclass of JSON types (``to_dict``/``from_dict``) so any
 store can serialise it.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any, Protocol, runtime_checkable
 
@@ -17,6 +18,9 @@ from service.wire.errors import APIError
 #: Builds the agent's next state from its current one (``None`` for a new agent). It may raise
 #: (an :class:`~service.wire.errors.APIError` such as a 422) to abort the update; nothing is written then.
 UpdateFn = Callable[["AgentState | None"], "AgentState"]
+#: One agent's part of a batched update (:meth:`AgentStore.update_many`): its id, its
+#: :data:`UpdateFn` and the timestamp its update must be later than the stored one's (None: none).
+Update = tuple[str, UpdateFn, "float | None"]
 
 
 @dataclass
@@ -115,6 +119,17 @@ class AgentStore(Protocol):
         strictly later than the stored state's timestamp; the check and the write are one atomic step.
         A new agent beyond the store's capacity raises :class:`StoreFullError`. Exceptions from ``fn``
         propagate and leave the stored state unchanged.
+        """
+        ...
+
+    async def update_many(self, updates: Sequence[Update]) -> list[AgentState | APIError]:
+        """:meth:`update` of each agent of ``updates`` (distinct ids), in one pass over the store.
+
+        Per agent it is :meth:`update` exactly: one atomic read-modify-write with the timestamp
+        check, and the same refusals (:class:`StaleTimestampError`, :class:`StoreFullError`, an
+        :class:`~service.wire.errors.APIError` raised by its function), each the agent's result in
+        place of its new state and leaving that agent's stored state unchanged; the others are
+        written. Any other exception from a function propagates, and nothing is written.
         """
         ...
 

@@ -16,7 +16,7 @@ from shapely.geometry.base import BaseGeometry
 
 from reach.distances import box_union_distances, signed_distances
 from reach.frames import human_frames
-from reach.packed_rings import trajectory_surrogates
+from reach.packed_rings import signed_distances_packed, trajectory_surrogates
 from reach.sets import BoxTubeSet, FRTSet
 
 
@@ -40,7 +40,29 @@ def box_clearances(
     return out  # type: ignore[return-value]
 
 
+#: Elements of the [A, N, M] arrays one pass of the box kernel holds: a batch of points is measured
+#: in slices of points so that its temporaries stay within a few tens of megabytes.
+BOX_PASS_ELEMENTS = 1 << 21
+
+
 def _same_size(
+    sets: list[BoxTubeSet], xy_world: np.ndarray, t_rel: list[np.ndarray | None]
+) -> list[np.ndarray]:
+    """:func:`box_clearances` of sets with the same number of boxes, in slices of points."""
+    n = len(xy_world)
+    step = max(1, BOX_PASS_ELEMENTS // (len(sets) * len(sets[0].boxes)))
+    if n <= step:
+        return _same_size_pass(sets, xy_world, t_rel)
+    parts = [
+        _same_size_pass(
+            sets, xy_world[a : a + step], [None if t is None else t[a : a + step] for t in t_rel]
+        )
+        for a in range(0, n, step)
+    ]
+    return [np.concatenate([part[i] for part in parts]) for i in range(len(sets))]
+
+
+def _same_size_pass(
     sets: list[BoxTubeSet], xy_world: np.ndarray, t_rel: list[np.ndarray | None]
 ) -> list[np.ndarray]:
     x, y = human_frames(xy_world, [s.pose for s in sets])  # [A, N]
@@ -81,6 +103,8 @@ class Reduction:
     starts: np.ndarray
     thresholds: Sequence[float]
     group: int = 1
+    #: Every point's distance is read (a batch's per-point clearances): no reduction.
+    every_point: bool = False
 
 
 def trajectory_surrogates_of(
@@ -91,7 +115,8 @@ def trajectory_surrogates_of(
 ) -> list[np.ndarray]:
     """Per set, surrogates of its :meth:`FRTSet.clearance` values (``reach.packed_rings``): the
     same least value and first value below the set's threshold per trajectory, the signed
-    distances computed only where those need them."""
+    distances computed only where those need them (with ``every_point``, every one of them, by
+    the same kernel)."""
     xy_world = np.asarray(xy_world, dtype=float).reshape(-1, 2)
     if not sets:
         return []
@@ -102,6 +127,9 @@ def trajectory_surrogates_of(
         index = np.full(n, frt.n_slices - 1) if t is None else frt.tube_indices(t)
         tubes, which = frt.tubes_present(index)
         packed = frt.packed_tubes(tuple(tubes.tolist()))
+        if reduction.every_point:
+            out.append(signed_distances_packed(packed, which, np.stack([x[a], y[a]], axis=1)))
+            continue
         out.append(
             trajectory_surrogates(
                 packed,

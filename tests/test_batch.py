@@ -5,7 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
+import reach.batch
 from models.runtime import ValueModel
 from models.value_fields import engine_for
 from reach.batch import box_clearances, tube_clearances
@@ -40,6 +42,20 @@ def test_batched_box_clearances_equal_the_sets_own(analytic_model_path: Path) ->
         alone = frt.clearance(xy, t)
         assert np.array_equal(mine, alone)
     assert any((c < 0).any() for c in together) and any((c > 0).any() for c in together)
+
+
+def test_box_clearances_measured_in_slices_of_points_are_the_same(
+    analytic_model_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    engine = engine_for(ValueModel.load(analytic_model_path))
+    rng = np.random.default_rng(4)
+    sets = random_sets(engine.conservative, rng, 5)
+    xy = rng.uniform(-30, 60, size=(997, 2))
+    t_rel = [None if i % 2 else rng.uniform(-0.5, 3.5, size=997) for i in range(len(sets))]
+    whole = box_clearances(sets, xy, t_rel)
+    monkeypatch.setattr(reach.batch, "BOX_PASS_ELEMENTS", 5 * len(sets[0].boxes) * 100)
+    for mine, alone in zip(box_clearances(sets, xy, t_rel), whole, strict=True):
+        assert np.array_equal(mine, alone)
 
 
 def test_batched_exact_clearances_equal_the_sets_own(analytic_model_path: Path) -> None:

@@ -295,7 +295,10 @@ def _exact_distances(
     else:
         thresholds = [reduction.thresholds[i] for i in plain]
         together = trajectory_surrogates_of(
-            sets, xy, times, Reduction(reduction.starts, thresholds, reduction.group)
+            sets,
+            xy,
+            times,
+            Reduction(reduction.starts, thresholds, reduction.group, reduction.every_point),
         )
     distances.update(zip(plain, together, strict=True))
     for i in pending:
@@ -412,18 +415,23 @@ def _for_agent(reduction: Reduction | None, i: int) -> Reduction | None:
     """``reduction`` with agent i's threshold alone."""
     if reduction is None:
         return None
-    return Reduction(reduction.starts, [reduction.thresholds[i]], reduction.group)
+    return Reduction(
+        reduction.starts, [reduction.thresholds[i]], reduction.group, reduction.every_point
+    )
 
 
 def _reduction(
     request: CollisionCheckRequest, points: CheckPoints, radii: np.ndarray
 ) -> Reduction | None:
     """What a batch's answers read of the distances: per trajectory only the least clearance and
-    the first collision (None: every point's clearance is answered)."""
-    if not points.batch or request.include_clearance:
+    the first collision, or every point's with ``include_clearance`` (None: a single trajectory,
+    measured as ``FRTSet.clearance`` does)."""
+    if not points.batch:
         return None
     group = 1 if points.cover is None else points.cover.count
-    return Reduction(points.starts, points.thresholds(radii).tolist(), group)
+    return Reduction(
+        points.starts, points.thresholds(radii).tolist(), group, request.include_clearance
+    )
 
 
 def _collision_radii(

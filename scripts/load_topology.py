@@ -347,12 +347,16 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "cpu_seconds": cpu,
         "check_p50_ms": check.get("p50_ms"),
         "check_p99_ms": check.get("p99_ms"),
+        "frame_p50_ms": load["operations"].get("frame", {}).get("p50_ms"),
+        "frame_p99_ms": load["operations"].get("frame", {}).get("p99_ms"),
         "late_client": load["deadline"]["client_over_deadline"],
         "late_server": server["deadline_misses"],
         "checks": check.get("count"),
         "observations": load["operations"].get("observe", {}).get("count"),
         "frames": load["operations"].get("frame", {}).get("count"),
         "errors": load["errors"],
+        "errors_by_op": load["errors_by_op"],
+        "error_samples": load["error_samples"],
         "skipped_ticks": load["skipped_ticks"],
         "fallback_area_ratio": load["fallback_area_ratio"],
         "load_exit": done.returncode,
@@ -383,7 +387,13 @@ def line(r: dict[str, Any]) -> str:
         f"{1000 * s['transfer_seconds'] / max(sets, 1):.1f} ms in transfer; "
         f"CPU s: servers {r['cpu_seconds']['servers']:.0f}, workers "
         f"{r['cpu_seconds']['workers']:.0f}, load harness {r['cpu_seconds']['load_harness']:.0f}; "
-        f"{r['observations'] or 0} observations, {r['frames'] or 0} frames; "
+        f"{r['observations'] or 0} observations, {r['frames'] or 0} frames"
+        + (
+            f" (p50/p99 {r['frame_p50_ms']:.1f}/{r['frame_p99_ms']:.1f} ms); "
+            if r["frames"]
+            else "; "
+        )
+        + f"skipped ticks {r['skipped_ticks']}; "
         f"floor {m['http_floor_p50_ms']:.2f} ms, exact set in-process "
         f"{m['exact_set_in_process_ms']:.1f} ms, load average {m['load_average_1min']:.2f}"
     )

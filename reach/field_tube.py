@@ -413,10 +413,10 @@ class FieldTubeSet(FRTSet):
         The windows' polygons are built once per set and the unions grow from the largest one
         already built (checks ask for many tubes of one set, mostly in increasing order)."""
         n = self.bound_rows[j]
-        if n == 0:
-            return self.outer.tube(0)
         chunk = SWEEPS_PER_WINDOW
         support = self.bound.sweep_support
+        if n == 0:  # the first sweep's polygon: inside window 0's, so every later tube holds it
+            return shapely.union_all(convex_polygons(self.bound.directions, support[:1]))
         if n % chunk:  # a partial last window: not one of the shared windows
             windows = np.stack(
                 [support[a : min(a + chunk, n)].max(axis=0) for a in range(0, n, chunk)]

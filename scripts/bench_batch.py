@@ -99,7 +99,10 @@ def run(url: str, args: argparse.Namespace) -> dict:
         ).encode()
         singles = [
             json.dumps(
-                {**common, "trajectory": [dict(zip("txy", p[:3], strict=True)) for p in path.tolist()]}
+                {
+                    **common,
+                    "trajectory": [dict(zip("txy", p[:3], strict=True)) for p in path.tolist()],
+                }
             ).encode()
             for path in batch
         ]

@@ -4,10 +4,12 @@ the analytic model)."""
 
 from __future__ import annotations
 
+import asyncio
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
@@ -155,3 +157,177 @@ def test_the_sdk_builds_a_frame_and_reads_its_answer(client: TestClient) -> None
     assert isinstance(result.results[0], ObservationResult)
     assert isinstance(result.results[1], FrameRejection)
     assert result.rejections()[0].error.field.startswith("agents.1.state.speed")
+
+
+# ------------------------------------------------ a frame gives each agent its one-by-one state
+
+#: Per agent of the equivalence frames: (agent_class, config, modes per round, steps, dt).
+KINDS: list[tuple[str | None, dict, list[int], int, float]] = [
+    (None, {}, [1], 6, 0.5),
+    (None, {}, [3], 6, 0.5),
+    (None, {"mode_floor": 0.05}, [2, 1, 3, 3, 1], 6, 0.5),  # the belief restarts from beta's
+    ("pedestrian", {}, [1], 6, 0.5),
+    ("cyclist", {}, [2], 6, 0.5),
+    (None, {"bounds_rule": "uniform_mixture", "beta_low": 0.1, "epsilon": 0.2}, [1], 6, 0.5),
+    ("pedestrian", {"bounds_rule": "uniform_mixture", "rescue_onset": 0.2}, [2], 6, 0.5),
+    (None, {"bounds_rule": "mass_ramp", "bounds_fit": "endpoints"}, [1], 6, 0.5),
+    (None, {"coverage_target": 0.9, "coverage_step": 0.05}, [1], 6, 0.5),  # adaptive gamma
+    ("cyclist", {"coverage_target": 0.95}, [3], 6, 0.5),
+    (None, {"epsilon": 0.0, "gamma": 0.3}, [1], 12, 0.25),
+    (None, {"beta_low": 0.3}, [2], 12, 0.25),
+]
+
+
+def _gaussian(rng: np.random.Generator, steps: int, shift: float) -> dict:
+    mean = rng.normal([shift, 0.0], [0.2, 1.0], size=(steps, 2))
+    a = rng.normal(0.0, 0.3, size=(steps, 2, 2))
+    cov = a @ a.transpose(0, 2, 1) + np.diag([0.01, 0.05])
+    return {"mean": mean.tolist(), "cov": cov.tolist()}
+
+
+def _kind_entry(rng: np.random.Generator, kind: int, k: int, first: bool) -> dict:
+    klass, config, modes, steps, dt = KINDS[kind]
+    m = modes[k % len(modes)]
+    if m == 1:
+        prediction = {"dt": dt, **_gaussian(rng, steps, 0.0)}
+    else:
+        prediction = {
+            "dt": dt,
+            "modes": [
+                {"weight": float(w), **_gaussian(rng, steps, 0.4 * j)}
+                for j, w in enumerate(rng.uniform(0.1, 1.0, m))
+            ],
+        }
+    speed = {"pedestrian": 1.2, "cyclist": 4.0}.get(klass or "car", 8.0)
+    body: dict = {
+        "state": {"x": 3.0 * kind + 0.5 * k, "y": 0.2 * k, "heading": 0.1 * k, "speed": speed},
+        "prediction": prediction,
+    }
+    # Actions near and far (the betas move both ways); some rounds without one.
+    if not first and (kind + k) % 4 != 0:
+        far = 4.0 if (kind * 7 + k) % 3 == 0 else 0.3
+        body["observed_action"] = {
+            "steering_rate": float(rng.normal(0.0, far * 0.3)),
+            "acceleration": float(rng.normal(0.0, far)),
+        }
+    if first:
+        body["config"] = config
+        if klass is not None:
+            body["agent_class"] = klass
+    return body
+
+
+@pytest.fixture(scope="module")
+def wide(analytic_model_path: Path) -> Iterator[TestClient]:
+    """A service whose exact sets are not refined in the background (the refinement, landing
+    when it may, decides which tubes the audit finds drawn: the audit's scores would differ)."""
+    settings = Settings(
+        model_path=analytic_model_path,
+        log_requests=False,
+        max_agents_per_frame=64,
+        frt_notch_cut=False,
+    )
+    with TestClient(create_app(settings), raise_server_exceptions=False) as c:
+        deadline = time.monotonic() + 30
+        while c.get("/readyz").status_code != 200:
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+        yield c
+
+
+def _sets_equal(a: object, b: object) -> bool:
+    """Two conservative sets made of the same boxes (a union: member by member)."""
+    members_a = getattr(a, "members", (a,))
+    members_b = getattr(b, "members", (b,))
+    return len(members_a) == len(members_b) and all(
+        np.array_equal(x.boxes, y.boxes)
+        and np.array_equal(x.boxes_until, y.boxes_until)
+        and x.pose == y.pose
+        for x, y in zip(members_a, members_b, strict=True)
+    )
+
+
+def _same_but_the_id(got: dict, want: dict) -> None:
+    for key in set(got) | set(want):
+        if key not in ("agent_id", "frt_ready"):
+            assert got.get(key) == want.get(key), key
+
+
+def test_a_frame_gives_each_agent_the_state_its_observations_one_by_one_give(
+    wide: TestClient,
+) -> None:
+    """States, betas, bounds, modes, versions, adaptive gamma and conservative sets bit for bit:
+    single Gaussians and mixtures (their number of modes changing), cars, pedestrians and
+    cyclists, with and without actions, the bounds rules and fits."""
+    services = wide.app.state.services
+    rng = np.random.default_rng(36)
+    ids = range(len(KINDS))
+    for k in range(6):
+        t = 10.0 + 0.5 * k
+        bodies = [_kind_entry(rng, kind, k, first=k == 0) for kind in ids]
+        frame = wide.post(
+            "/v1/frames",
+            json={"timestamp": t, "agents": [{"agent_id": f"eq-f{i}", **b} for i, b in zip(ids, bodies, strict=True)]},
+        )  # fmt: skip
+        assert frame.status_code == 200, frame.text
+        assert frame.json()["rejected"] == 0, frame.json()
+        for i, body in zip(ids, bodies, strict=True):
+            one = wide.post(f"/v1/agents/eq-s{i}/observations", json={"timestamp": t, **body})
+            assert one.status_code == 200, one.text
+            _same_but_the_id(frame.json()["results"][i], one.json())
+        for i in ids:  # the exact sets ready before the next round: the audits score alike
+            for who in ("f", "s"):
+                assert wide.get(f"/v1/agents/eq-{who}{i}?wait_frt_ms=10000").json()["frt_ready"]
+            got, want = asyncio.run(services.store.get_many([f"eq-f{i}", f"eq-s{i}"]))
+            assert got.frt_version == k + 1
+            got.agent_id = want.agent_id
+            assert got == want, KINDS[i]
+            sets = [services.conservative_cache.get(services.job_for(s).key) for s in (got, want)]
+            assert sets[0] is not None and _sets_equal(*sets)
+            views = [wide.get(f"/v1/agents/eq-{who}{i}").json() for who in ("f", "s")]
+            _same_but_the_id(views[0], views[1])
+    adaptive = asyncio.run(services.store.get("eq-f8"))
+    assert adaptive.gamma_state is not None  # the audit moved it
+
+
+def test_a_state_written_between_the_frames_read_and_its_update_is_built_from(
+    wide: TestClient, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The frame reads an agent's state, another writer stores a newer one before the frame's
+    update: the agent's next state is built from the stored one, as one by one."""
+    from service.flows import agents
+    from service.wire.schemas import ObservationRequest
+
+    services = wide.app.state.services
+    store = services.store
+    rng = np.random.default_rng(5)
+    bodies = [_kind_entry(rng, 1, k, first=k == 0) for k in range(3)]
+    for who in ("race-f", "race-s"):
+        r = wide.post(f"/v1/agents/{who}/observations", json={"timestamp": 1.0, **bodies[0]})
+        assert r.is_success, r.text
+    real_get_many = store.get_many
+    overtaken = []
+
+    async def read_then_overtaken(agent_ids: list[str], **kwargs: object) -> list:
+        read = await real_get_many(agent_ids, **kwargs)
+        if agent_ids == ["race-f"] and not overtaken:  # another writer, after this read
+            overtaken.append(True)
+            request = ObservationRequest.model_validate({"timestamp": 2.0, **bodies[1]})
+            await agents.observe(services, "race-f", request)
+        return read
+
+    monkeypatch.setattr(store, "get_many", read_then_overtaken)
+    frame = wide.post(
+        "/v1/frames", json={"timestamp": 3.0, "agents": [{"agent_id": "race-f", **bodies[2]}]}
+    )
+    monkeypatch.undo()
+    assert overtaken and frame.status_code == 200, frame.text
+    assert frame.json()["rejected"] == 0, frame.json()
+    for t, body in ((2.0, bodies[1]), (3.0, bodies[2])):
+        one = wide.post("/v1/agents/race-s/observations", json={"timestamp": t, **body})
+        assert one.status_code == 200, one.text
+    _same_but_the_id(frame.json()["results"][0], one.json())
+    got, want = asyncio.run(store.get_many(["race-f", "race-s"]))
+    assert got.frt_version == 3
+    got.agent_id = want.agent_id
+    assert got == want

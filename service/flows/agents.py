@@ -3,7 +3,9 @@
 One observation: validate its prediction once -> the agent's next state from its last one
 (``service.flows.next_state``: the belief updated by the observed action, each mode's bounds, the
 class's range check) -> store it atomically with the timestamp check -> start the exact FRT of the
-new version in the background and answer at once.
+new version in the background, build its conservative set, and answer at once. A frame's
+observations (``service.flows.frames``) take the same flow together, each stage once over all of
+them (:func:`observe_many`); an observation alone is a frame of one.
 
 The observed position is audited against the agent's earlier sets (``service.runtime.audit``) after
 the answer is sent; for an agent with ``coverage_target``, before its new state is built, since the
@@ -13,6 +15,8 @@ misses move the gamma the new version's bounds are fitted with (``service.flows.
 from __future__ import annotations
 
 import asyncio
+from collections.abc import Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 from reach.sets import FRTSet
@@ -25,15 +29,17 @@ from service.flows.next_state import (
     StateInputs,
     modes_out,
     next_state,
-    observed_prediction,
+    next_states,
+    observed_predictions,
     resolve_class,
 )
 from service.runtime.audit import Scored, ServedVersion
+from service.runtime.jobs import FRTJob
 from service.runtime.scheduler import FRTKey
 from service.runtime.services import Services
 from service.runtime.settings import Settings
-from service.runtime.stores import AgentState
-from service.wire.errors import AgentNotFoundError, StaleTimestampError
+from service.runtime.stores import AgentState, Update, UpdateFn
+from service.wire.errors import AgentNotFoundError, APIError, StaleTimestampError
 from service.wire.schemas import (
     AgentResponse,
     AuditOut,
@@ -55,61 +61,182 @@ def belief_out(belief: Belief) -> tuple[BeliefOut, BeliefOut]:
     )
 
 
+@dataclass(frozen=True)
+class Applied:
+    """An observation stored: the agent's new state, the job of its version and the belief over
+    beta built for it last."""
+
+    state: AgentState
+    job: FRTJob
+    belief: Belief
+
+
 async def observe(
     services: Services, agent_id: str, request: ObservationRequest, wait_frt_s: float = 0.0
 ) -> ObservationResponse:
-    """The observation flow. The numerical work (validation, Bayes update, bounds fit: well under a
-    millisecond, run inline, a thread hop would cost more) uses the state read first; the store's
-    atomic update then only checks that nobody wrote in between (else it recomputes from the fresh
-    state, under the agent's lock). With ``wait_frt_s`` > 0 the answer waits that long at most for
-    the new version's exact FRT (``frt_ready`` says whether it came): a planner that needs the
-    fresh set saves the round trip of a waiting ``GET``."""
-    # Collision checks (deadlines) before this observation's few milliseconds of numerical work:
-    # requests already waiting on the event loop go first, and checks in flight finish first.
+    """The observation flow: the agent alone through :func:`observe_many`. With ``wait_frt_s`` >
+    0 the answer waits that long at most for the new version's exact FRT (``frt_ready`` says
+    whether it came): a planner that needs the fresh set saves the round trip of a waiting
+    ``GET``."""
+    (result,) = await observe_many(services, [(agent_id, request)])
+    if isinstance(result, APIError):
+        raise result
+    if wait_frt_s > 0:
+        await services.exact_within(result.job, wait_frt_s)
+    return observation_response(services, request, result)
+
+
+@dataclass
+class _Entry:
+    """One observation on its way through :func:`observe_many`."""
+
+    index: int
+    agent_id: str
+    request: ObservationRequest
+    prediction: ObservedPrediction
+    patch: dict[str, Any]
+    previous: AgentState | None = None
+    scored: list[Scored] | None = None
+    inputs: StateInputs | None = None
+    built: list[Belief] = field(default_factory=list)
+
+
+async def observe_many(
+    services: Services, observations: Sequence[tuple[str, ObservationRequest]]
+) -> list[Applied | APIError]:
+    """The observation flow of each ``(agent_id, request)`` (distinct agents), stage by stage
+    over all of them: one wait for the checks in flight, the predictions validated, the agents'
+    states read in one ``get_many``, their next states built together (``next_states``: Bayes
+    update, bounds fit), stored in one ``update_many`` (per agent the atomic update with the
+    timestamp check: a state someone wrote in between is rebuilt from, under the agent's lock),
+    their exact sets submitted and their conservative sets built together. Per observation the
+    stored result, or the error that refused it (nothing of that agent changed)."""
+    # Collision checks (deadlines) before this numerical work: requests already waiting on the
+    # event loop go first, and checks in flight finish first.
     await services.priority.observation_turn()
     settings = services.settings
     engine = services.require_engine()
-    prediction = observed_prediction(request.prediction, settings)
-    patch = request.config.model_dump(exclude_none=True) if request.config else {}
-    previous = await services.store.get(agent_id)
+    results: list[Applied | APIError | None] = [None] * len(observations)
+    entries = _validated(services, observations, results)
+    previous = await services.store.get_many([e.agent_id for e in entries])
+    entries = [
+        e
+        for e, prior in zip(entries, previous, strict=True)
+        if _prepared(services, e, prior, results)
+    ]
+    built = next_states(
+        [e.previous for e in entries], [e.inputs for e in entries], settings, engine
+    )  # type: ignore[misc]
+    updates: list[Update] = []
+    stored_entries = []
+    for entry, result in zip(entries, built, strict=True):
+        if isinstance(result, APIError):
+            results[entry.index] = result
+            continue
+        entry.built.append(result[1])
+        updates.append(
+            (entry.agent_id, _apply(services, entry, result[0]), entry.request.timestamp)
+        )
+        stored_entries.append(entry)
+    stored = await services.store.update_many(updates)
+    _submitted(services, stored_entries, stored, results)
+    return results  # type: ignore[return-value]
+
+
+def _validated(
+    services: Services,
+    observations: Sequence[tuple[str, ObservationRequest]],
+    results: list[Applied | APIError | None],
+) -> list[_Entry]:
+    """The observations whose predictions are valid (the others' 422s into ``results``)."""
+    requests = [request for _, request in observations]
+    predictions = observed_predictions([r.prediction for r in requests], services.settings)
+    entries = []
+    for i, ((agent_id, request), prediction) in enumerate(
+        zip(observations, predictions, strict=True)
+    ):
+        if isinstance(prediction, APIError):
+            results[i] = prediction
+            continue
+        patch = request.config.model_dump(exclude_none=True) if request.config else {}
+        entries.append(_Entry(i, agent_id, request, prediction, patch))
+    return entries
+
+
+def _prepared(
+    services: Services,
+    entry: _Entry,
+    previous: AgentState | None,
+    results: list[Applied | APIError | None],
+) -> bool:
+    """Whether ``entry`` goes on to its next state, its inputs made from ``previous`` (the state
+    read); else its error (a stale timestamp, a class change) is in ``results``."""
+    request = entry.request
+    entry.previous = previous
     if previous is not None and request.timestamp <= previous.timestamp:
-        raise StaleTimestampError(agent_id, request.timestamp, previous.timestamp)
+        results[entry.index] = StaleTimestampError(
+            entry.agent_id, request.timestamp, previous.timestamp
+        )
+        return False
     if previous is None:
-        services.audit.forget(agent_id)  # versions of an earlier life of this id
-    scored = _scored_before_building(services, agent_id, request, previous, patch)
-    built: list[Belief] = []
+        services.audit.forget(entry.agent_id)  # versions of an earlier life of this id
+    entry.scored = _scored_before_building(services, entry.agent_id, request, previous, entry.patch)
+    try:
+        entry.inputs = _state_inputs(services.settings, entry, previous)
+    except APIError as exc:
+        results[entry.index] = exc
+        return False
+    return True
 
-    def build(prior: AgentState | None) -> AgentState:
-        inputs = _state_inputs(settings, agent_id, request, prediction, patch, prior, scored)
-        state, belief = next_state(prior, inputs, settings, engine)
-        built.append(belief)
-        return state
 
-    candidate = build(previous)
+def _apply(services: Services, entry: _Entry, candidate: AgentState) -> UpdateFn:
+    """The store's update of ``entry``'s agent: ``candidate`` if the stored state is still the
+    one it was built from, else the next state built from the stored one."""
+    settings, engine = services.settings, services.require_engine()
 
     def apply(current: AgentState | None) -> AgentState:
-        return candidate if _same(current, previous) else build(current)
+        if _same(current, entry.previous):
+            return candidate
+        state, belief = next_state(
+            current, _state_inputs(settings, entry, current), settings, engine
+        )
+        entry.built.append(belief)
+        return state
 
-    state = await services.store.update(agent_id, apply, timestamp=request.timestamp)
-    job = services.job_for(state)
-    services.submit(job)
-    # Built now, so that checks finding the exact set late look it up; the audit keeps it.
-    conservative = services.conservative(job)
-    if settings.audit:
-        _record_for_audit(services, state, job.key, conservative, request, scored)
-    if wait_frt_s > 0:
-        await services.exact_within(job, wait_frt_s)
-    return _observation_response(services, request, state, job.key, built[-1])
+    return apply
 
 
-def _observation_response(
+def _submitted(
     services: Services,
-    request: ObservationRequest,
-    state: AgentState,
-    key: FRTKey,
-    last_built: Belief,
+    entries: list[_Entry],
+    stored: list[AgentState | APIError],
+    results: list[Applied | APIError | None],
+) -> None:
+    """The stored versions' exact sets submitted, their conservative sets built (checks finding
+    the exact set late look them up; the audit keeps them) and recorded for the audit."""
+    applied = []
+    for entry, state in zip(entries, stored, strict=True):
+        if isinstance(state, APIError):
+            results[entry.index] = state
+            continue
+        applied.append((entry, state, services.job_for(state)))
+    for _, _, job in applied:
+        services.submit(job)
+    conservative = [services.conservative(job) for _, _, job in applied]
+    later = []
+    for (entry, state, job), frt in zip(applied, conservative, strict=True):
+        if services.settings.audit:
+            later += _record_for_audit(services, state, job.key, frt, entry.request, entry.scored)
+        results[entry.index] = Applied(state, job, entry.built[-1])
+    if later:  # scored once the answers are on their way
+        asyncio.get_running_loop().call_soon(_audit_later, services, later)
+
+
+def observation_response(
+    services: Services, request: ObservationRequest, applied: Applied
 ) -> ObservationResponse:
-    """The answer to an observation stored as ``state``."""
+    """The answer to an observation stored as ``applied``."""
+    state, last_built = applied.state, applied.belief
     # The belief just built, unless the stored one is another (from_dict would give the same arrays:
     # a stored belief is normalised already, and normalising it again changes no bit).
     same = last_built.to_dict() == state.belief
@@ -124,7 +251,7 @@ def _observation_response(
         frt_version=state.frt_version,
         # A previous state existed exactly when the version went past 1.
         action_scored=request.observed_action is not None and state.frt_version > 1,
-        frt_ready=services.scheduler.is_ready(key),
+        frt_ready=services.scheduler.is_ready(applied.job.key),
         modes=modes_out(state.modes),
         mode_mass=state.modes["mode_mass"] if state.modes else None,
     )
@@ -147,25 +274,20 @@ def _scored_before_building(
     return services.score_position(agent_id, position.x, position.y, request.timestamp)
 
 
-def _state_inputs(
-    settings: Settings,
-    agent_id: str,
-    request: ObservationRequest,
-    prediction: ObservedPrediction,
-    patch: dict[str, Any],
-    prior: AgentState | None,
-    scored: list[Scored] | None,
-) -> StateInputs:
+def _state_inputs(settings: Settings, entry: _Entry, prior: AgentState | None) -> StateInputs:
     """The observation's inputs to the agent's next state from ``prior``: its class, overrides
-    and config, with adaptive gamma's step taken where ``scored``."""
-    overrides = {**(prior.config if prior else {}), **patch}
-    klass, overrides = resolve_class(agent_id, request.agent_class, prior, overrides)
+    and config, with adaptive gamma's step taken where it was scored before building."""
+    request = entry.request
+    overrides = {**(prior.config if prior else {}), **entry.patch}
+    klass, overrides = resolve_class(entry.agent_id, request.agent_class, prior, overrides)
     config = AgentConfig.of(settings, overrides)
     gamma_state = None
-    if scored is not None:
-        gamma_state = adapt_gamma(prior, scored, config)
+    if entry.scored is not None:
+        gamma_state = adapt_gamma(prior, entry.scored, config)
         config = config.with_gamma(served_gamma(gamma_state))
-    return StateInputs(agent_id, request, prediction, overrides, config, klass, gamma_state)
+    return StateInputs(
+        entry.agent_id, request, entry.prediction, overrides, config, klass, gamma_state
+    )
 
 
 def _record_for_audit(
@@ -175,9 +297,9 @@ def _record_for_audit(
     conservative: FRTSet,
     request: ObservationRequest,
     scored: list[Scored] | None,
-) -> None:
-    """Keep the new version for auditing later positions, and audit this one: after the answer,
-    or at once where it was scored already (adaptive gamma)."""
+) -> list[tuple[str, float, float, float]]:
+    """Keep the new version for auditing later positions, and audit this one: at once where it
+    was scored already (adaptive gamma); else the position to score after the answer."""
     config = AgentConfig.of(services.settings, state.config)
     services.audit.record(
         state.agent_id,
@@ -191,13 +313,17 @@ def _record_for_audit(
             conservative=conservative,
         ),
     )
-    if scored is None:
-        position = request.state
-        asyncio.get_running_loop().call_soon(
-            services.audit_later, state.agent_id, position.x, position.y, request.timestamp
-        )
-    else:
+    if scored is not None:
         services.take_audit(state.agent_id, scored, request.timestamp)
+        return []
+    position = request.state
+    return [(state.agent_id, position.x, position.y, request.timestamp)]
+
+
+def _audit_later(services: Services, positions: list[tuple[str, float, float, float]]) -> None:
+    """Score and count each (agent, x, y, t) (``Services.audit_later``)."""
+    for agent_id, x, y, t in positions:
+        services.audit_later(agent_id, x, y, t)
 
 
 def adapt_gamma(prior: AgentState | None, scored: list[Scored], config: AgentConfig) -> float:

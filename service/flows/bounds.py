@@ -84,12 +84,62 @@ class ControlBounds:
         """Field name -> value, in contract order (JSON-safe)."""
         return {k: float(v) for k, v in asdict(self).items()}
 
+    @classmethod
+    def from_row(cls, row: np.ndarray) -> ControlBounds:
+        """The eight values of ``row``, in contract order."""
+        return cls(*(float(b) for b in row))
+
 
 #: ControlBounds' fields in order (``dataclasses.asdict`` deep-copies, which costs every observation).
 _BOUND_FIELDS = tuple(f.name for f in fields(ControlBounds))
 
 
 # --- gamma trimming ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class TrimRows:
+    """What trims each row of a batch of predictions besides the prediction itself: its beta,
+    gamma, confidence-to-bounds rule and onset, and its class's hard limits ([B, 2])."""
+
+    betas: np.ndarray
+    gammas: np.ndarray
+    rules: tuple[BoundsRule, ...]
+    onsets: np.ndarray
+    limits: np.ndarray
+
+    @classmethod
+    def one(
+        cls, beta: float, gamma: float, rule: BoundsRule, onset: float, limits: Sequence[float]
+    ) -> TrimRows:
+        return cls(
+            np.array([beta], dtype=np.float64),
+            np.array([gamma], dtype=np.float64),
+            (rule,),
+            np.array([onset], dtype=np.float64),
+            _limits(limits)[None],
+        )
+
+
+def trim_rows(means: np.ndarray, covs: np.ndarray, rows: TrimRows) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`trim_intervals` of every row of a batch (means [B, S, 2], covs [B, S, 2, 2]), each
+    with its own parameters; the same operations on every row, whatever the others."""
+    betas = rows.betas
+    bad = ~(np.isfinite(betas) & (betas > 0.0))
+    if bad.any():
+        raise ValueError(f"beta must be positive, got {float(betas[bad.argmax()])!r}")
+    variances = covs[:, :, [0, 1], [0, 1]]
+    if not (variances > 0.0).all():
+        raise ValueError("covariance diagonals must be positive")
+    tempered = np.sqrt(variances / betas[:, None, None])
+    z = np.array([half_width_factor(float(g)) for g in rows.gammas])
+    delta = z[:, None, None] * tempered
+    for i, rule in enumerate(rows.rules):
+        if rule != "paper":
+            w = distrust(min(float(betas[i]), 1.0), float(rows.onsets[i]))
+            gamma = float(rows.gammas[i])
+            delta[i] = half_widths(means[i], tempered[i], gamma, z[i], rows.limits[i], rule, w)
+    return means - delta, means + delta
 
 
 def trim_intervals(
@@ -116,18 +166,8 @@ def trim_intervals(
         raise ValueError(
             f"expected mean (S, 2) and cov (S, 2, 2), got {mu.shape} and {sigma.shape}"
         )
-    if not (math.isfinite(beta) and beta > 0.0):
-        raise ValueError(f"beta must be positive, got {beta!r}")
-    variances = sigma[:, [0, 1], [0, 1]]
-    if not np.all(variances > 0.0):
-        raise ValueError("covariance diagonals must be positive")
-    if rule == "paper":
-        delta = half_width_factor(gamma) * np.sqrt(variances / beta)
-    else:
-        w = distrust(min(beta, 1.0), onset)
-        tempered = np.sqrt(variances / beta)
-        delta = half_widths(mu, tempered, gamma, half_width_factor(gamma), _limits(limits), rule, w)
-    return mu - delta, mu + delta
+    lo, hi = trim_rows(mu[None], sigma[None], TrimRows.one(beta, gamma, rule, onset, limits))
+    return lo[0], hi[0]
 
 
 def _limits(limits: Sequence[float]) -> np.ndarray:
@@ -161,9 +201,10 @@ def steps_in_horizon(n_steps: int, dt: float, horizon: float = HORIZON_S) -> int
 
 
 def _boundary_values(values: np.ndarray, reduce: Any) -> np.ndarray:
-    """Step values at the step boundaries 0, dt, ..., T: the binding one of the two adjacent steps."""
-    inner = reduce(values[:-1], values[1:])
-    return np.concatenate([values[:1], inner, values[-1:]])
+    """Step values [..., n] at the step boundaries 0, dt, ..., T: the binding one of the two
+    adjacent steps."""
+    inner = reduce(values[..., :-1], values[..., 1:])
+    return np.concatenate([values[..., :1], inner, values[..., -1:]], axis=-1)
 
 
 @dataclass(frozen=True)
@@ -205,9 +246,10 @@ def _max_lines_below(
     The 2-variable linear programme ``max a + b`` s.t. ``(1 - w_j) a + w_j b <= c_kj``,
     ``a >= floor_k``, ``b >= floor_k``, solved exactly by enumerating the vertices (intersections
     of constraint pairs, ``v`` = :func:`_vertices` of ``w``) and keeping the best feasible one; all
-    K programmes at once (an observation fits four). When the optimum is an edge (several lines
-    touch the same point at mid-horizon), the middle of that edge is taken. Any rounding excess over
-    a c_kj is finally subtracted, so the line never rises above a point.
+    K programmes at once (four per fit, every fit of a frame together), each row by the same
+    operations whatever the others. When the optimum is an edge (several lines touch the same
+    point at mid-horizon), the middle of that edge is taken. Any rounding excess over a c_kj is
+    finally subtracted, so the line never rises above a point.
     """
     h = np.concatenate([c, -np.stack([floor, floor], axis=1)], axis=1)  # [K, m + 2]
     hi_, hj = h[:, v.i], h[:, v.j]  # [K, P]
@@ -232,19 +274,56 @@ def _max_lines_below(
 def _envelope(
     lo: np.ndarray, hi: np.ndarray, dt: float, horizon: float, lim: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Start and end values ([min|max, dim]) of the envelope fit (see :func:`fit_bounds`): the
-    highest line below each dimension's lower values and, mirrored, the lowest line above its
-    upper ones, four programmes solved together."""
-    n = lo.shape[0]
+    """Start and end values ([B, min|max, dim]) of the envelope fit (see :func:`fit_bounds`) of
+    each row (lo, hi [B, n, 2], limits [B, 2]): the highest line below each dimension's lower
+    values and, mirrored, the lowest line above its upper ones, four programmes a row, all
+    solved together."""
+    b, n = lo.shape[:2]
     w = np.append(np.arange(n, dtype=np.float64) * dt, horizon) / horizon
     v = _vertices(n, dt, horizon)
-    rows = [_boundary_values(lo[:, d], np.minimum) for d in range(2)]
-    rows += [-_boundary_values(hi[:, d], np.maximum) for d in range(2)]
-    floors = -np.concatenate([lim[:2], lim[:2]]).astype(np.float64)
-    a, b = _max_lines_below(v, w, np.stack(rows), floors)
-    start = np.stack([a[:2], -a[2:]])  # [min|max, dim]
-    end = np.stack([b[:2], -b[2:]])
+    rows = [_boundary_values(lo[:, :, d], np.minimum) for d in range(2)]
+    rows += [-_boundary_values(hi[:, :, d], np.maximum) for d in range(2)]
+    floors = -np.concatenate([lim, lim], axis=1)  # [B, 4]
+    a, e = _max_lines_below(v, w, np.stack(rows, axis=1).reshape(4 * b, -1), floors.reshape(-1))
+    a, e = a.reshape(b, 4), e.reshape(b, 4)
+    start = np.stack([a[:, :2], -a[:, 2:]], axis=1)  # [B, min|max, dim]
+    end = np.stack([e[:, :2], -e[:, 2:]], axis=1)
     return start, end
+
+
+def fit_rows(
+    lo: np.ndarray,
+    hi: np.ndarray,
+    dt: float,
+    limits: np.ndarray,
+    horizon: float = HORIZON_S,
+    method: BoundsFit = "envelope",
+) -> np.ndarray:
+    """:func:`fit_bounds` of every row of a batch (lo, hi [B, S, 2], each row's limits [B, 2]):
+    the eight bounds of each row [B, 8] in contract order, each row by the same operations
+    whatever the others."""
+    lim = np.asarray(limits, dtype=np.float64)
+    if lim.ndim != 2 or lim.shape[1] != 2 or not (np.isfinite(lim).all() and (lim > 0.0).all()):
+        raise ValueError(f"limits must be two positive numbers a row, got {limits!r}")
+    lo_arr = np.clip(lo, -lim[:, None, :], lim[:, None, :])
+    hi_arr = np.clip(hi, -lim[:, None, :], lim[:, None, :])
+    if lo_arr.ndim != 3 or lo_arr.shape[2] != 2 or hi_arr.shape != lo_arr.shape or not lo_arr.size:
+        raise ValueError(f"expected lo, hi of shape (S, 2), got {lo_arr.shape} and {hi_arr.shape}")
+    if not np.all(lo_arr <= hi_arr):
+        raise ValueError("every interval needs lo <= hi")
+    n = steps_in_horizon(lo_arr.shape[1], dt, horizon)
+    lo_arr, hi_arr = lo_arr[:, :n], hi_arr[:, :n]
+    if method == "endpoints":
+        start = np.stack([lo_arr[:, 0], hi_arr[:, 0]], axis=1)
+        end = np.stack([lo_arr[:, -1], hi_arr[:, -1]], axis=1)
+    elif method == "envelope":
+        start, end = _envelope(lo_arr, hi_arr, dt, horizon, lim)
+    else:
+        raise ValueError(f"unknown bounds fit {method!r} (use 'envelope' or 'endpoints')")
+    start = np.clip(start, -lim[:, None, :], lim[:, None, :])
+    end = np.clip(end, -lim[:, None, :], lim[:, None, :])
+    # Contract order: u1_min_start, u2_min_start, u1_min_end, u2_min_end, then the maxima.
+    return np.concatenate([start[:, 0], end[:, 0], start[:, 1], end[:, 1]], axis=1)
 
 
 def fit_bounds(
@@ -270,32 +349,26 @@ def fit_bounds(
 
     Both results lie within ``[-limit, limit]``.
     """
-    lim = _limits(limits)
-    lo_arr, hi_arr = clip_intervals(lo, hi, lim)
+    lo_arr = np.asarray(lo, dtype=np.float64)
+    hi_arr = np.asarray(hi, dtype=np.float64)
     if lo_arr.ndim != 2 or lo_arr.shape[1] != 2 or hi_arr.shape != lo_arr.shape or not lo_arr.size:
         raise ValueError(f"expected lo, hi of shape (S, 2), got {lo_arr.shape} and {hi_arr.shape}")
-    if not np.all(lo_arr <= hi_arr):
-        raise ValueError("every interval needs lo <= hi")
-    n = steps_in_horizon(lo_arr.shape[0], dt, horizon)
-    lo_arr, hi_arr = lo_arr[:n], hi_arr[:n]
-    if method == "endpoints":
-        start = np.stack([lo_arr[0], hi_arr[0]])
-        end = np.stack([lo_arr[-1], hi_arr[-1]])
-    elif method == "envelope":
-        start, end = _envelope(lo_arr, hi_arr, dt, horizon, lim)
-    else:
-        raise ValueError(f"unknown bounds fit {method!r} (use 'envelope' or 'endpoints')")
-    start, end = np.clip(start, -lim, lim), np.clip(end, -lim, lim)
-    return ControlBounds(
-        u1_min_start=float(start[0, 0]),
-        u2_min_start=float(start[0, 1]),
-        u1_min_end=float(end[0, 0]),
-        u2_min_end=float(end[0, 1]),
-        u1_max_start=float(start[1, 0]),
-        u2_max_start=float(start[1, 1]),
-        u1_max_end=float(end[1, 0]),
-        u2_max_end=float(end[1, 1]),
-    )
+    row = fit_rows(lo_arr[None], hi_arr[None], dt, _limits(limits)[None], horizon, method)
+    return ControlBounds.from_row(row[0])
+
+
+def control_bounds_rows(
+    means: np.ndarray,
+    covs: np.ndarray,
+    dt: float,
+    rows: TrimRows,
+    horizon: float = HORIZON_S,
+    method: BoundsFit = "envelope",
+) -> np.ndarray:
+    """:func:`control_bounds` of every row of a batch of predictions with the same steps (means
+    [B, S, 2], covs [B, S, 2, 2], each row's parameters ``rows``): [B, 8] in contract order."""
+    lo, hi = trim_rows(means, covs, rows)
+    return fit_rows(lo, hi, dt, rows.limits, horizon, method)
 
 
 def control_bounds(
@@ -368,6 +441,47 @@ def validate_prediction(
     ``prediction.cov``, ``prediction.cov[k]``); returns ``(mean (S, 2), cov (S, 2, 2))`` as float64
     with each covariance replaced by the mean of it and its transpose.
     """
+    (result,) = validate_predictions([(mean, cov, dt)], max_steps)
+    if isinstance(result, PredictionError):
+        raise result
+    return result
+
+
+def validate_predictions(
+    predictions: Sequence[tuple[Any, Any, Any]], max_steps: int = 64
+) -> list[tuple[np.ndarray, np.ndarray] | PredictionError]:
+    """:func:`validate_prediction` of each ``(mean, cov, dt)``: its arrays, or the error naming
+    its first offending field. The predictions with as many steps are checked together (the same
+    element-wise arithmetic and checks per prediction, whatever the others)."""
+    results: list[tuple[np.ndarray, np.ndarray] | PredictionError | None] = []
+    by_steps: dict[int, list[int]] = {}
+    steps: list[tuple[list[Any], list[Any]] | None] = []
+    for i, (mean, cov, dt) in enumerate(predictions):
+        try:
+            rows, mats = _step_lists(mean, cov, dt, max_steps)
+        except PredictionError as exc:
+            results.append(exc)
+            steps.append(None)
+            continue
+        results.append(None)
+        steps.append((rows, mats))
+        by_steps.setdefault(len(rows), []).append(i)
+    for members in by_steps.values():
+        group = [steps[i] for i in members]
+        valid = _valid_at_once([g[0] for g in group], [g[1] for g in group])  # type: ignore[index]
+        for j, i in enumerate(members):
+            if valid is not None and valid[2][j]:
+                results[i] = (valid[0][j], valid[1][j])
+            else:  # something is wrong: step by step, to name the first offending field
+                try:
+                    results[i] = _checked_step_by_step(*steps[i])  # type: ignore[misc]
+                except PredictionError as exc:
+                    results[i] = exc
+    return results  # type: ignore[return-value]
+
+
+def _step_lists(mean: Any, cov: Any, dt: Any, max_steps: int) -> tuple[list[Any], list[Any]]:
+    """A prediction's dt checked and its means and covariances as lists of as many steps."""
     step = _number(dt, "prediction.dt")
     if step <= 0.0:
         raise PredictionError("prediction.dt", f"must be > 0, got {step!r}")
@@ -377,10 +491,10 @@ def validate_prediction(
         raise PredictionError(
             "prediction.cov", f"has {len(mats)} steps but prediction.mean has {len(rows)}"
         )
-    valid = _valid_at_once(rows, mats)
-    if valid is not None:
-        return valid
-    # Something is wrong: step by step, to name the first offending field.
+    return rows, mats
+
+
+def _checked_step_by_step(rows: list[Any], mats: list[Any]) -> tuple[np.ndarray, np.ndarray]:
     mean_arr = np.stack([_array(r, (2,), f"prediction.mean[{k}]") for k, r in enumerate(rows)])
     cov_list = []
     for k, m in enumerate(mats):
@@ -397,28 +511,30 @@ def validate_prediction(
     return mean_arr, np.stack(cov_list)
 
 
-def _valid_at_once(rows: list[Any], mats: list[Any]) -> tuple[np.ndarray, np.ndarray] | None:
-    """:func:`validate_prediction`'s checks and result for all steps at once (the same element-wise
-    arithmetic, one eigvalsh call for the stack: ~4x faster for a valid prediction), or None if
-    any check fails (then the step-by-step checks find and name it)."""
+def _valid_at_once(
+    rows: list[Any], mats: list[Any]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """:func:`validate_prediction`'s checks and result for G predictions of S steps each at once
+    (the same element-wise arithmetic, one eigvalsh call for the stack): means [G, S, 2], the
+    symmetrised covariances [G, S, 2, 2] and whether each passed [G]; None if they do not form
+    such arrays (then the step-by-step checks find and name what is wrong)."""
     try:
         mean = np.asarray(rows, dtype=np.float64)
         cov = np.asarray(mats, dtype=np.float64)
     except (TypeError, ValueError):
         return None
-    n = len(rows)
-    if mean.shape != (n, 2) or cov.shape != (n, 2, 2):
+    g, n = len(rows), len(rows[0])
+    if mean.shape != (g, n, 2) or cov.shape != (g, n, 2, 2):
         return None
-    if not (np.isfinite(mean).all() and np.isfinite(cov).all()):
-        return None
-    scale = np.maximum(np.abs(cov[:, 0, 0]), np.abs(cov[:, 1, 1]))
-    if (np.abs(cov[:, 0, 1] - cov[:, 1, 0]) > SYMMETRY_RTOL * scale).any():
-        return None
-    cov = 0.5 * (cov + cov.transpose(0, 2, 1))
-    eig = np.linalg.eigvalsh(cov)
-    if not ((eig[:, 1] > 0.0) & (eig[:, 0] > PD_RTOL * eig[:, 1])).all():
-        return None
-    return mean, cov
+    ok = np.isfinite(mean).all(axis=(1, 2)) & np.isfinite(cov).all(axis=(1, 2, 3))
+    with np.errstate(over="ignore", invalid="ignore"):  # the non-finite are failed already
+        scale = np.maximum(np.abs(cov[..., 0, 0]), np.abs(cov[..., 1, 1]))
+        ok &= ~(np.abs(cov[..., 0, 1] - cov[..., 1, 0]) > SYMMETRY_RTOL * scale).any(axis=1)
+        cov = 0.5 * (cov + cov.swapaxes(-1, -2))
+    ok &= np.isfinite(cov).all(axis=(1, 2, 3))
+    eig = np.linalg.eigvalsh(np.where(ok[:, None, None, None], cov, np.eye(2)))
+    ok &= ((eig[..., 1] > 0.0) & (eig[..., 0] > PD_RTOL * eig[..., 1])).all(axis=1)
+    return mean, cov, ok
 
 
 def validate_filter_params(

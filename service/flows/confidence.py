@@ -59,13 +59,78 @@ def _grid(beta_low: float, n: int) -> np.ndarray:
     return betas
 
 
-def _normalise(log_probs: np.ndarray) -> np.ndarray:
-    """Log-probabilities shifted so that they sum to one (a stable log-sum-exp), then floored."""
-    top = log_probs.max()
-    lse = top + np.log(np.exp(log_probs - top).sum())
-    if abs(lse) < 1e-13:  # already normalised: keep it bit-identical (idempotent storage)
-        lse = 0.0
+# --- the filter on rows: every belief of a frame at once, and one belief as a row of one --------
+#
+# A belief is a row of log-probabilities over its hypotheses, the last axis of an array; every
+# function below works row by row (the same floating-point operations on every row, whatever the
+# other rows), so a frame's beliefs computed together are bit for bit the ones computed one by one.
+
+
+def normalised_rows(log_probs: np.ndarray) -> np.ndarray:
+    """Each row shifted so that its probabilities sum to one (a stable log-sum-exp), then
+    floored at :data:`LOG_PROB_FLOOR`; a row normalised already stays bit for bit the same."""
+    top = log_probs.max(axis=-1, keepdims=True)
+    lse = top + np.log(np.exp(log_probs - top).sum(axis=-1, keepdims=True))
+    lse[np.abs(lse) < 1e-13] = 0.0  # normalised already: idempotent storage
     return np.maximum(log_probs - lse, LOG_PROB_FLOOR)
+
+
+def probability_rows(log_probs: np.ndarray) -> np.ndarray:
+    """Each row's probabilities: non-negative, summing to one."""
+    p = np.exp(log_probs - log_probs.max(axis=-1, keepdims=True))
+    return p / p.sum(axis=-1, keepdims=True)
+
+
+def point_estimates(betas: np.ndarray, log_probs: np.ndarray) -> np.ndarray:
+    """Each row's point estimate ``beta = sum_i beta_i b_+(beta_i)`` (paper, the equation after
+    ``beta``), inside [betas[0], betas[-1]]; ``betas`` broadcasts against ``log_probs``."""
+    betas = np.broadcast_to(betas, log_probs.shape)
+    estimate = (betas * probability_rows(log_probs)).sum(axis=-1)
+    return np.clip(estimate, betas[..., 0], betas[..., -1])
+
+
+def transition_rows(
+    log_probs: np.ndarray, log_prior: np.ndarray, epsilons: np.ndarray
+) -> np.ndarray:
+    """The epsilon-static transition ``b_- = (1 - eps) b_+ + eps b_-^0`` of each row (paper, the
+    equation after ``beta``), with its own epsilon in [0, 1) (``epsilons``, one per row) and
+    prior ``log_prior`` (broadcast against ``log_probs``): a log-add-exp; eps = 0 keeps the row.
+    Not normalised (:func:`normalised_rows`)."""
+    eps = np.asarray(epsilons, dtype=np.float64).reshape(-1)
+    if not (np.isfinite(eps).all() and (eps >= 0.0).all() and (eps < 1.0).all()):
+        raise ValueError(f"epsilon must lie in [0, 1), got {eps.tolist()!r}")
+    moving = eps > 0.0
+    if not moving.any():
+        return log_probs
+    shape = (-1,) + (1,) * (log_probs.ndim - 1)
+    keep = np.array([math.log1p(-e) for e in eps]).reshape(shape)
+    mix = np.array([math.log(e) if e > 0.0 else -math.inf for e in eps]).reshape(shape)
+    mixed = np.logaddexp(keep + log_probs, mix + log_prior)
+    return np.where(moving.reshape(shape), mixed, log_probs)
+
+
+def mahalanobis2_rows(actions: np.ndarray, means: np.ndarray, covs: np.ndarray) -> np.ndarray:
+    """``d2 = (u - mu)^T Sigma^-1 (u - mu)`` of each row ([R, k] actions and means, [R, k, k]
+    covariances, each positive definite), as ``|L^-1 (u - mu)|^2`` with L the Cholesky factor of
+    the symmetrised Sigma; capped at :data:`MAHALANOBIS2_CAP`, so an astronomically far action
+    stays finite."""
+    sym = 0.5 * (covs + covs.swapaxes(-1, -2))
+    try:
+        chol = np.linalg.cholesky(sym)
+    except np.linalg.LinAlgError:
+        raise ValueError("cov must be symmetric positive definite") from None
+    with np.errstate(over="ignore", invalid="ignore"):
+        z = np.linalg.solve(chol, (actions - means)[..., None])[..., 0]
+        d2 = (z * z).sum(axis=-1)
+    # Finite inputs: a non-finite d2 can only come from overflow, i.e. an astronomically far action.
+    return np.where(np.isfinite(d2), np.minimum(d2, MAHALANOBIS2_CAP), MAHALANOBIS2_CAP)
+
+
+def log_likelihood_rows(betas: np.ndarray, d2: np.ndarray, k: int) -> np.ndarray:
+    """``log f(u; mu, Sigma / beta_i)`` per row and hypothesis, up to a constant shared by every
+    hypothesis of the row (see :func:`log_likelihoods`); ``d2`` [...] broadcasts against the
+    rows of ``betas`` [..., n]."""
+    return 0.5 * k * np.log(betas) - 0.5 * betas * np.asarray(d2)[..., None]
 
 
 @dataclass(frozen=True, eq=False)
@@ -90,7 +155,7 @@ class Belief:
             raise ValueError("betas must be positive, finite and strictly ascending")
         if np.isnan(log_probs).any() or not np.isfinite(log_probs).any():
             raise ValueError("log_probs must be numbers with at least one finite entry")
-        log_probs = _normalise(log_probs)
+        log_probs = normalised_rows(log_probs[None])[0]
         betas.flags.writeable = False
         log_probs.flags.writeable = False
         object.__setattr__(self, "betas", betas)
@@ -109,8 +174,7 @@ class Belief:
     @property
     def probs(self) -> np.ndarray:
         """b(beta_i): non-negative, summing to one."""
-        p = np.exp(self.log_probs - np.max(self.log_probs))
-        return p / np.sum(p)
+        return probability_rows(self.log_probs)
 
     @property
     def beta(self) -> float:
@@ -118,7 +182,7 @@ class Belief:
 
         Always inside [betas[0], betas[-1]] = [beta_low, 1].
         """
-        return float(np.clip(self.betas @ self.probs, self.betas[0], self.betas[-1]))
+        return float(point_estimates(self.betas, self.log_probs))
 
     def to_dict(self) -> dict[str, list[float]]:
         """JSON-safe form for storage: plain lists of finite floats."""
@@ -147,9 +211,9 @@ def transition(belief: Belief, epsilon: float) -> Belief:
         raise ValueError(f"epsilon must lie in [0, 1), got {epsilon!r}")
     if epsilon == 0.0:
         return belief
-    log_prior = -math.log(belief.betas.size)
-    mixed = np.logaddexp(math.log1p(-epsilon) + belief.log_probs, math.log(epsilon) + log_prior)
-    return Belief(betas=belief.betas, log_probs=mixed)
+    log_prior = np.full(belief.betas.shape, -math.log(belief.betas.size))
+    mixed = transition_rows(belief.log_probs[None], log_prior, np.array([epsilon]))
+    return Belief(betas=belief.betas, log_probs=mixed[0])
 
 
 def log_likelihoods(
@@ -171,16 +235,8 @@ def log_likelihoods(
         raise ValueError(f"shapes: action {u.shape}, mean {mu.shape}, cov {sigma.shape}")
     if not (np.all(np.isfinite(u)) and np.all(np.isfinite(mu)) and np.all(np.isfinite(sigma))):
         raise ValueError("action, mean and cov must be finite")
-    try:
-        chol = np.linalg.cholesky(0.5 * (sigma + sigma.T))
-    except np.linalg.LinAlgError:
-        raise ValueError("cov must be symmetric positive definite") from None
-    with np.errstate(over="ignore", invalid="ignore"):
-        z = np.linalg.solve(chol, u - mu)  # d2 = |L^-1 (u - mu)|^2, a sum of squares
-        d2 = float(z @ z)
-    # Finite inputs: a non-finite d2 can only come from overflow, i.e. an astronomically far action.
-    d2 = min(d2, MAHALANOBIS2_CAP) if math.isfinite(d2) else MAHALANOBIS2_CAP
-    return 0.5 * k * np.log(betas) - 0.5 * betas * d2
+    d2 = mahalanobis2_rows(u[None], mu[None], sigma[None])
+    return log_likelihood_rows(betas, d2[0], k)
 
 
 def update_belief(

@@ -1,5 +1,7 @@
 """One frame of many agents (API.md, "Frames"): every agent's observation of one instant in one
-request, each applied by the observation flow of ``service.flows.agents`` on its own.
+request, applied by the observation flow of ``service.flows.agents`` for all of them together
+(``observe_many``: each stage once over the frame's agents; each agent's state is the one its
+observation alone would give).
 
 Each entry is validated on its own: an entry that is not a valid observation, names an agent
 twice in the frame, or is refused by the flow (a stale timestamp, a range, a class change) is
@@ -59,25 +61,33 @@ def _entry(index: int, raw: dict[str, Any], timestamp: float) -> tuple[str, Obse
 
 
 async def apply_frame(services: Services, request: FrameRequest) -> FrameResponse:
-    """Apply every valid entry of ``request`` in order; one result per entry."""
+    """Apply every valid entry of ``request``; one result per entry, in order."""
     check_length("agents", request.agents, services.settings.max_agents_per_frame)
     services.require_engine()
     seen: set[str] = set()
-    results: list[ObservationResponse | FrameRejection] = []
+    results: list[ObservationResponse | FrameRejection | None] = [None] * len(request.agents)
+    valid: list[tuple[int, str, ObservationRequest]] = []
     for index, raw in enumerate(request.agents):
         agent_id = raw.get("agent_id") if isinstance(raw.get("agent_id"), str) else None
         try:
             agent_id, observation = _entry(index, raw, request.timestamp)
             if agent_id in seen:
                 raise APIError(422, "agent appears twice in the frame", field="agent_id")
-            seen.add(agent_id)
-            results.append(await agents.observe(services, agent_id, observation))
         except APIError as exc:
-            results.append(_rejection(index, agent_id, exc))
+            results[index] = _rejection(index, agent_id, exc)
+            continue
+        seen.add(agent_id)
+        valid.append((index, agent_id, observation))
+    applied = await agents.observe_many(services, [(a, o) for _, a, o in valid])
+    for (index, agent_id, observation), result in zip(valid, applied, strict=True):
+        if isinstance(result, APIError):
+            results[index] = _rejection(index, agent_id, result)
+        else:
+            results[index] = agents.observation_response(services, observation, result)
     rejected = sum(isinstance(r, FrameRejection) for r in results)
     return FrameResponse(
         timestamp=request.timestamp,
         applied=len(results) - rejected,
         rejected=rejected,
-        results=results,
+        results=results,  # type: ignore[arg-type]
     )

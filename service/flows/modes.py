@@ -39,24 +39,20 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from service.flows.bounds import PredictionError, validate_prediction
-from service.flows.confidence import LOG_PROB_FLOOR, Belief, log_likelihoods
+from service.flows.confidence import (
+    Belief,
+    log_likelihood_rows,
+    mahalanobis2_rows,
+    normalised_rows,
+    point_estimates,
+    prior_belief,
+    probability_rows,
+    transition_rows,
+)
 
 #: Defaults of the per-agent ``mode_mass`` and ``mode_floor``.
 MODE_MASS = 0.99
 MODE_FLOOR = 1e-3
-
-
-def _logsumexp(a: np.ndarray, axis: int | None = None) -> np.ndarray:
-    top = np.max(a, axis=axis, keepdims=True)
-    out = top + np.log(np.sum(np.exp(a - top), axis=axis, keepdims=True))
-    return out.reshape(()) if axis is None else np.squeeze(out, axis=axis)
-
-
-def _normalised(log_probs: np.ndarray) -> np.ndarray:
-    lse = float(_logsumexp(log_probs))
-    if abs(lse) < 1e-13:
-        lse = 0.0
-    return np.maximum(log_probs - lse, LOG_PROB_FLOOR)
 
 
 def normalised_weights(weights: ArrayLike) -> np.ndarray:
@@ -64,13 +60,100 @@ def normalised_weights(weights: ArrayLike) -> np.ndarray:
     w = np.asarray(weights, dtype=np.float64)
     if w.ndim != 1 or not w.size or not (np.isfinite(w).all() and (w > 0).all()):
         raise ValueError("mode weights must be a non-empty list of positive finite numbers")
-    return w / w.sum()
+    return weight_rows(w[None])[0]
+
+
+# --- joint beliefs on rows: [A, M, n], one agent per row -----------------------------------------
+#
+# Every function below works agent by agent on arrays of agents with the same numbers of modes M
+# and hypotheses n (the same floating-point operations on every agent, whatever the others): a
+# frame's joint beliefs computed together are bit for bit the ones computed one by one, and
+# :class:`JointBelief` is an agent on its own.
+
+
+def weight_rows(weights: np.ndarray) -> np.ndarray:
+    """Each agent's mode weights [A, M] divided by their sum."""
+    return weights / weights.sum(axis=-1, keepdims=True)
+
+
+def joint_normalised(log_probs: np.ndarray) -> np.ndarray:
+    """Each agent's b(m, beta_i) [A, M, n] normalised over all its pairs (``normalised_rows``)."""
+    a, m, n = log_probs.shape
+    return normalised_rows(log_probs.reshape(a, m * n)).reshape(a, m, n)
+
+
+def joint_of_beta_beliefs(beta_log_probs: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Independent modes and beta, ``b(m, beta_i) = w_m b(beta_i)``: beliefs over beta [A, n]
+    and normalised weights [A, M] in, normalised joint log-probabilities [A, M, n] out."""
+    return joint_normalised(np.log(weights)[:, :, None] + beta_log_probs[:, None, :])
+
+
+def joint_transition(
+    log_probs: np.ndarray, weights: np.ndarray, epsilons: np.ndarray
+) -> np.ndarray:
+    """``b_- = (1 - eps) b_+ + eps w_m / n`` of each agent (its own epsilon), normalised."""
+    a, m, n = log_probs.shape
+    log_prior = np.broadcast_to(np.log(weights)[:, :, None] - math.log(n), (a, m, n))
+    mixed = transition_rows(log_probs.reshape(a, m * n), log_prior.reshape(a, m * n), epsilons)
+    return joint_normalised(mixed.reshape(a, m, n))
+
+
+def joint_likelihoods(
+    betas: np.ndarray, actions: np.ndarray, means: np.ndarray, covs: np.ndarray
+) -> np.ndarray:
+    """``log f(u; mu_m, Sigma_m / beta_i)`` [A, M, n] of each agent's action [A, k] under each of
+    its modes (means [A, M, k], covs [A, M, k, k]) and hypotheses (betas [A, n]), up to a constant
+    shared by all of the agent's pairs: the ``- (1/2) log det Sigma_m`` that differs between modes
+    is kept, relative to the agent's smallest (0 for one mode)."""
+    a, m, k = means.shape
+    u = np.broadcast_to(actions[:, None, :], (a, m, k)).reshape(a * m, k)
+    d2 = mahalanobis2_rows(u, means.reshape(a * m, k), covs.reshape(a * m, k, k)).reshape(a, m)
+    log_dets = np.linalg.slogdet(0.5 * (covs + covs.swapaxes(-1, -2)))[1]
+    log_dets = log_dets - log_dets.min(axis=-1, keepdims=True)
+    return log_likelihood_rows(betas[:, None, :], d2, k) - 0.5 * log_dets[:, :, None]
+
+
+def joint_update(
+    log_probs: np.ndarray,
+    weights: np.ndarray,
+    epsilons: np.ndarray,
+    betas: np.ndarray,
+    observed: tuple[np.ndarray, np.ndarray, np.ndarray],
+) -> np.ndarray:
+    """One filter step of each agent: the transition, then Bayes' rule over every (mode, beta)
+    pair with the ``observed`` (actions [A, k], means [A, M, k], covs [A, M, k, k]), normalised."""
+    prior = joint_transition(log_probs, weights, epsilons)
+    return joint_normalised(prior + joint_likelihoods(betas, *observed))
+
+
+def joint_mode_probs(log_probs: np.ndarray) -> np.ndarray:
+    """Each agent's mode posterior P(m) [A, M]."""
+    a, m, n = log_probs.shape
+    return probability_rows(log_probs.reshape(a, m * n)).reshape(a, m, n).sum(axis=-1)
+
+
+def joint_mode_betas(betas: np.ndarray, log_probs: np.ndarray) -> np.ndarray:
+    """Each agent's per-mode point estimates E[beta | m] [A, M], inside [beta_low, 1]: the point
+    estimate of each conditional belief b(beta | m), as the single-Gaussian filter's."""
+    return point_estimates(betas[:, None, :], normalised_rows(log_probs))
+
+
+def joint_beta_marginals(log_probs: np.ndarray) -> np.ndarray:
+    """Each agent's marginal belief over beta [A, n], normalised."""
+    top = log_probs.max(axis=1, keepdims=True)
+    lse = top + np.log(np.exp(log_probs - top).sum(axis=1, keepdims=True))
+    return normalised_rows(lse[:, 0, :])
+
+
+def _row(value: np.ndarray) -> np.ndarray:
+    return np.asarray(value, dtype=np.float64)[None]
 
 
 @dataclass(frozen=True, eq=False)
 class JointBelief:
     """b(m, beta_i) as normalised log-probabilities ``log_probs`` [M, n], with the mode weights
-    ``weights`` [M] (normalised) the transition mixes back towards."""
+    ``weights`` [M] (normalised) the transition mixes back towards: one agent of the functions
+    above."""
 
     betas: np.ndarray
     weights: np.ndarray
@@ -86,25 +169,21 @@ class JointBelief:
             raise ValueError("betas must be positive, finite and strictly ascending")
         if np.isnan(log_probs).any() or not np.isfinite(log_probs).any():
             raise ValueError("log_probs must be numbers with at least one finite entry")
+        log_probs = joint_normalised(log_probs[None])[0]
         for name, value in (("betas", betas), ("weights", weights), ("log_probs", log_probs)):
-            if name == "log_probs":
-                value = _normalised(value)
             value.flags.writeable = False
             object.__setattr__(self, name, value)
 
     @classmethod
     def prior(cls, betas: ArrayLike, weights: ArrayLike) -> JointBelief:
         """The prior b_-^0(m, beta_i) = w_m / n."""
-        betas = np.asarray(betas, dtype=np.float64)
-        w = normalised_weights(weights)
-        log_prior = np.log(w)[:, None] - math.log(betas.size) + np.zeros((1, betas.size))
-        return cls(betas, w, log_prior)
+        return cls.from_beta_belief(prior_belief(betas), weights)
 
     @classmethod
     def from_beta_belief(cls, belief: Belief, weights: ArrayLike) -> JointBelief:
         """Independent modes and beta: b(m, beta_i) = w_m b(beta_i)."""
         w = normalised_weights(weights)
-        return cls(belief.betas, w, np.log(w)[:, None] + belief.log_probs[None, :])
+        return cls(belief.betas, w, joint_of_beta_beliefs(_row(belief.log_probs), w[None])[0])
 
     def transition(self, epsilon: float) -> JointBelief:
         """``b_- = (1 - eps) b_+ + eps w_m / n`` (identity for eps = 0)."""
@@ -112,9 +191,8 @@ class JointBelief:
             raise ValueError(f"epsilon must lie in [0, 1), got {epsilon!r}")
         if epsilon == 0.0:
             return self
-        log_prior = np.log(self.weights)[:, None] - math.log(self.betas.size)
-        mixed = np.logaddexp(math.log1p(-epsilon) + self.log_probs, math.log(epsilon) + log_prior)
-        return JointBelief(self.betas, self.weights, mixed)
+        mixed = joint_transition(_row(self.log_probs), _row(self.weights), np.array([epsilon]))
+        return JointBelief(self.betas, self.weights, mixed[0])
 
     def update(
         self, action: ArrayLike, means: ArrayLike, covs: ArrayLike, epsilon: float
@@ -122,41 +200,45 @@ class JointBelief:
         """One filter step: the transition, then Bayes' rule over every (mode, beta) pair with
         ``f(u; mu_m, Sigma_m / beta_i)``; ``means`` [M, k], ``covs`` [M, k, k] (each positive
         definite), one per mode."""
-        prior = self.transition(epsilon)
         mu = np.asarray(means, dtype=np.float64)
         sigma = np.asarray(covs, dtype=np.float64)
+        u = np.asarray(action, dtype=np.float64)
         if mu.ndim != 2 or mu.shape[0] != self.weights.size or sigma.shape[0] != mu.shape[0]:
             raise ValueError(f"need one mean and cov per mode: {mu.shape}, {sigma.shape}")
-        log_dets = np.array([np.linalg.slogdet(0.5 * (s + s.T))[1] for s in sigma])
-        # Relative to the smallest: a constant shared by every pair, which the normalisation
-        # cancels; with one mode it is 0, and the step is the single-Gaussian filter's exactly.
-        log_dets -= log_dets.min()
-        rows = [
-            log_likelihoods(prior.betas, action, mu[m], sigma[m]) - 0.5 * log_dets[m]
-            for m in range(mu.shape[0])
-        ]
-        return JointBelief(prior.betas, prior.weights, prior.log_probs + np.stack(rows))
+        if not (np.isfinite(u).all() and np.isfinite(mu).all() and np.isfinite(sigma).all()):
+            raise ValueError("action, means and covs must be finite")
+        if not (math.isfinite(epsilon) and 0.0 <= epsilon < 1.0):
+            raise ValueError(f"epsilon must lie in [0, 1), got {epsilon!r}")
+        observed = (u[None], mu[None], sigma[None])
+        log_probs = joint_update(
+            _row(self.log_probs),
+            _row(self.weights),
+            np.array([epsilon]),
+            _row(self.betas),
+            observed,
+        )
+        return JointBelief(self.betas, self.weights, log_probs[0])
 
     @property
     def probs(self) -> np.ndarray:
         """b(m, beta_i) [M, n], summing to one."""
-        p = np.exp(self.log_probs - self.log_probs.max())
-        return p / p.sum()
+        m, n = self.log_probs.shape
+        return probability_rows(self.log_probs.reshape(1, m * n)).reshape(m, n)
 
     @property
     def mode_probs(self) -> np.ndarray:
         """The mode posterior P(m) [M]."""
-        return self.probs.sum(axis=1)
+        return joint_mode_probs(_row(self.log_probs))[0]
 
     @property
     def mode_betas(self) -> np.ndarray:
         """Each mode's point estimate E[beta | m] [M], inside [beta_low, 1]: the point estimate
         of its conditional belief b(beta | m), computed as the single-Gaussian filter's."""
-        return np.array([Belief(self.betas, row).beta for row in self.log_probs])
+        return joint_mode_betas(_row(self.betas), _row(self.log_probs))[0]
 
     def beta_belief(self) -> Belief:
         """The marginal belief over beta."""
-        return Belief(betas=self.betas, log_probs=_logsumexp(self.log_probs, axis=0))
+        return Belief(betas=self.betas, log_probs=joint_beta_marginals(_row(self.log_probs))[0])
 
     def for_prediction(self, weights: ArrayLike) -> JointBelief:
         """The belief carried to a new prediction with ``weights``: the same posterior when it

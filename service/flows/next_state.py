@@ -1,16 +1,22 @@
-"""An agent's next state from its last one and one observation: the one path every observation takes.
+"""Agents' next states from their last ones and one observation each: the one path every
+observation takes, alone (:func:`next_state`) or with the other agents of its frame
+(:func:`next_states`), each step done for all of them at once on arrays whose every row is
+computed by the same operations whatever the other rows, so an agent gets bit for bit the same
+state either way.
 
 Every prediction is a mixture; a single Gaussian is a mixture of one mode, and for it each step
 below is the paper's single-Gaussian filter exactly (``tests/test_next_state.py`` holds them equal,
 bit for bit, against ``service.flows.confidence.update_belief`` and the paper's bounds):
 
 1. the belief over (mode, beta) of the last state is updated by the observed action, scored
-   against the first step of every mode of the last prediction (``service.flows.modes``: the
-   epsilon-static transition, then Bayes; paper, eq. ``beta``) and carried to the new prediction;
+   against the first step of every mode of the last prediction (``service.flows.beliefs``, on
+   ``service.flows.modes``: the epsilon-static transition, then Bayes; paper, eq. ``beta``) and
+   carried to the new prediction;
 2. the modes the served set holds are the most probable ones (``select_modes``);
 3. each of them gets control bounds from its own beta under the agent's confidence-to-bounds rule
    (``service.flows.bounds``, paper, "Collision Set Update"), within its class's limits, and the
-   bounds and the speed are checked against the class's ranges (one check, from the class);
+   bounds and the speed are checked against the class's ranges (one check, from the class); an
+   agent whose modes fail either is refused with the error of its first such mode;
 4. the state stores the marginal belief over beta, the most probable mode's prediction and
    bounds, and, for several modes, the joint belief and the set's modes (:class:`ModeSet`). The
    job of a state (``AgentState.set_bounds``) has one row of bounds per mode in the set; its set
@@ -19,6 +25,7 @@ bit for bit, against ``service.flows.confidence.update_belief`` and the paper's 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -27,19 +34,18 @@ import numpy as np
 from reach.agent_classes import DEFAULT_CLASS, AgentClass, agent_class, engine_for_class
 from reach.engine import FRTEngine, OutOfRangeError
 from service.flows.agent_config import AgentConfig
-from service.flows.bounds import PredictionError, control_bounds, validate_prediction
-from service.flows.confidence import Belief, hypotheses, prior_belief
-from service.flows.modes import (
-    MODE_FLOOR,
-    MODE_MASS,
-    JointBelief,
-    Mixture,
-    select_modes,
-    validate_mixture,
+from service.flows.beliefs import BeliefStep, Joint, groups, summarised, updated_joints
+from service.flows.bounds import (
+    PredictionError,
+    TrimRows,
+    control_bounds_rows,
+    validate_predictions,
 )
+from service.flows.confidence import Belief, hypotheses
+from service.flows.modes import MODE_FLOOR, MODE_MASS, Mixture, select_modes, validate_mixture
 from service.runtime.settings import Settings
 from service.runtime.stores import AgentState
-from service.wire.errors import AgentClassChangedError, FieldError
+from service.wire.errors import AgentClassChangedError, APIError, FieldError
 from service.wire.limits import RequestLimits, check_prediction_steps
 from service.wire.schemas import (
     MAX_MODES,
@@ -90,21 +96,49 @@ def observed_prediction(
 ) -> ObservedPrediction:
     """An observation's prediction validated once (422 naming the field): one Gaussian, or a
     list of modes (a list of one is that Gaussian, named as one)."""
-    modes = getattr(prediction, "modes", None)
-    if modes is not None and len(modes) == 1:
-        prediction = prediction.model_copy(
-            update={"mean": modes[0].mean, "cov": modes[0].cov, "modes": None}
-        )
-        modes = None
-    if modes is None:
-        check_prediction_steps("prediction", prediction.mean, settings)
+    (result,) = observed_predictions([prediction], settings)
+    if isinstance(result, APIError):
+        raise result
+    return result
+
+
+def observed_predictions(
+    predictions: Sequence[ObservationPrediction | Prediction], settings: RequestLimits
+) -> list[ObservedPrediction | APIError]:
+    """:func:`observed_prediction` of each prediction of a frame: the single Gaussians validated
+    together (``validate_predictions``), the mixtures one by one."""
+    out: list[ObservedPrediction | APIError | None] = [None] * len(predictions)
+    singles: list[tuple[int, tuple[Any, Any, Any]]] = []
+    for i, prediction in enumerate(predictions):
+        modes = getattr(prediction, "modes", None)
         try:
-            mean, cov = validate_prediction(
-                prediction.mean, prediction.cov, prediction.dt, settings.max_prediction_steps
-            )
-        except PredictionError as exc:
-            raise _field_error(exc) from None
-        return ObservedPrediction(Mixture(prediction.dt, np.ones(1), mean[None], cov[None]), False)
+            if modes is not None and len(modes) > 1:
+                out[i] = _observed_mixture(prediction, settings)
+                continue
+            mean, cov = (prediction.mean, prediction.cov) if modes is None else _one(modes)
+            check_prediction_steps("prediction", mean, settings)
+        except APIError as exc:
+            out[i] = exc
+            continue
+        singles.append((i, (mean, cov, prediction.dt)))
+    checked = validate_predictions([g for _, g in singles], settings.max_prediction_steps)
+    for (i, (_, _, dt)), result in zip(singles, checked, strict=True):
+        if isinstance(result, PredictionError):
+            out[i] = _field_error(result)
+        else:
+            mean, cov = result
+            out[i] = ObservedPrediction(Mixture(dt, np.ones(1), mean[None], cov[None]), False)
+    return out  # type: ignore[return-value]
+
+
+def _one(modes: list[Any]) -> tuple[Any, Any]:
+    return modes[0].mean, modes[0].cov
+
+
+def _observed_mixture(
+    prediction: ObservationPrediction | Prediction, settings: RequestLimits
+) -> ObservedPrediction:
+    modes = prediction.modes  # type: ignore[union-attr]
     for m, mode in enumerate(modes[:MAX_MODES]):
         check_prediction_steps(f"prediction.modes.{m}", mode.mean, settings)
     try:
@@ -166,48 +200,69 @@ def check_ranges(
         raise FieldError(field, f"{exc}{suffix}") from None
 
 
-def previous_joint(prior: AgentState, betas: np.ndarray) -> JointBelief:
-    """The prior state's belief over (mode, beta) on the hypotheses ``betas`` (a new beta_low
-    keeps the weights); a single Gaussian's is its beta belief with one mode."""
-    if prior.modes is not None:
-        return JointBelief.from_dict(prior.modes["belief"]).regrid(betas)
-    belief = Belief.from_dict(prior.belief)
-    if not np.array_equal(belief.betas, betas):
-        belief = Belief(betas=betas, log_probs=belief.log_probs)
-    return JointBelief.from_beta_belief(belief, [1.0])
+@dataclass(frozen=True)
+class BoundsRow:
+    """One mode's bounds to fit: the prediction, the mode, its beta, the agent's config and its
+    class's hard limits."""
+
+    prediction: ObservedPrediction
+    m: int
+    beta: float
+    config: AgentConfig
+    limits: tuple[float, float]
 
 
-def previous_first_steps(prior: AgentState) -> tuple[np.ndarray, np.ndarray]:
-    """Each mode's first predicted step of the prior state: means [M, 2], covs [M, 2, 2]."""
-    if prior.modes is not None:
-        return (
-            np.asarray(prior.modes["first_mean"], dtype=np.float64),
-            np.asarray(prior.modes["first_cov"], dtype=np.float64),
-        )
-    return (
-        np.asarray(prior.prediction["mean"][:1], dtype=np.float64),
-        np.asarray(prior.prediction["cov"][:1], dtype=np.float64),
+def bounds_of_rows(rows: Sequence[BoundsRow], settings: Settings) -> list[list[float] | APIError]:
+    """Step 3's bounds of every row (eight, contract order), or the error naming the mode's
+    prediction: the rows with the same steps and fit computed together (``control_bounds_rows``),
+    one by one where that raises, so that each row gets its own error."""
+    out: list[list[float] | APIError | None] = [None] * len(rows)
+    keys = [
+        (r.prediction.mixture.means.shape[1:], r.prediction.mixture.dt, r.config.bounds_fit)
+        for r in rows
+    ]
+    for _, members in groups(keys).items():
+        try:
+            fitted = _fit([rows[i] for i in members], settings)
+        except ValueError:  # a PredictionError too: the rows one by one name theirs
+            for i in members:
+                try:
+                    out[i] = _fit([rows[i]], settings)[0]
+                except PredictionError as exc:
+                    prediction = rows[i].prediction
+                    if prediction.as_modes:
+                        out[i] = FieldError(prediction.field(rows[i].m), str(exc))
+                    else:
+                        out[i] = _field_error(exc)
+                except ValueError as exc:
+                    out[i] = FieldError(rows[i].prediction.field(rows[i].m), str(exc))
+            continue
+        for i, bounds in zip(members, fitted, strict=True):
+            out[i] = bounds
+    return out  # type: ignore[return-value]
+
+
+def _fit(rows: list[BoundsRow], settings: Settings) -> list[list[float]]:
+    """The bounds of rows with the same steps and fit, together."""
+    first = rows[0]
+    trim = TrimRows(
+        betas=np.array([r.beta for r in rows], dtype=np.float64),
+        gammas=np.array([r.config.gamma for r in rows], dtype=np.float64),
+        rules=tuple(r.config.bounds_rule for r in rows),  # type: ignore[misc]
+        onsets=np.array([r.config.rescue_onset for r in rows], dtype=np.float64),
+        limits=np.array([r.limits for r in rows], dtype=np.float64),
     )
-
-
-def updated_joint(
-    prior: AgentState | None,
-    request: ObservationRequest,
-    weights: np.ndarray,
-    config: AgentConfig,
-) -> JointBelief:
-    """Step 1: the prior's joint belief after the observed action, carried to ``weights``; the
-    prior over (mode, beta) for a new agent."""
-    betas = hypotheses(config.beta_low)
-    if prior is None:
-        return JointBelief.from_beta_belief(prior_belief(betas), weights)
-    joint = previous_joint(prior, betas)
-    action = request.observed_action
-    if action is not None:
-        observed = np.array([action.steering_rate, action.acceleration], dtype=np.float64)
-        means, covs = previous_first_steps(prior)
-        joint = joint.update(observed, means, covs, config.epsilon)
-    return joint.for_prediction(weights)
+    means = np.stack([r.prediction.mixture.means[r.m] for r in rows])
+    covs = np.stack([r.prediction.mixture.covs[r.m] for r in rows])
+    bounds = control_bounds_rows(
+        means,
+        covs,
+        first.prediction.mixture.dt,
+        trim,
+        horizon=settings.horizon_s,
+        method=first.config.bounds_fit,  # type: ignore[arg-type]
+    )
+    return bounds.tolist()  # type: ignore[no-any-return]
 
 
 def mode_bounds(
@@ -219,27 +274,10 @@ def mode_bounds(
     limits: tuple[float, float],
 ) -> list[float]:
     """Step 3: mode m's eight control bounds (contract order) for ``beta``."""
-    mixture = prediction.mixture
-    try:
-        bounds = control_bounds(
-            mixture.means[m],
-            mixture.covs[m],
-            mixture.dt,
-            beta,
-            config.gamma,
-            horizon=settings.horizon_s,
-            method=config.bounds_fit,  # type: ignore[arg-type]
-            limits=limits,
-            rule=config.bounds_rule,  # type: ignore[arg-type]
-            onset=config.rescue_onset,
-        )
-    except PredictionError as exc:
-        if prediction.as_modes:
-            raise FieldError(prediction.field(m), str(exc)) from None
-        raise _field_error(exc) from None
-    except ValueError as exc:
-        raise FieldError(prediction.field(m), str(exc)) from None
-    return [float(b) for b in bounds.as_array()]
+    (bounds,) = bounds_of_rows([BoundsRow(prediction, m, beta, config, limits)], settings)
+    if isinstance(bounds, APIError):
+        raise bounds
+    return bounds
 
 
 @dataclass(frozen=True)
@@ -255,37 +293,107 @@ class StateInputs:
     klass: AgentClass
     gamma_state: float | None
 
+    def belief_step(self, prior: AgentState | None) -> BeliefStep:
+        """What step 1 needs of this observation: the action is scored if there is a prior."""
+        action = self.request.observed_action
+        observed = None
+        if action is not None and prior is not None:
+            observed = np.array([action.steering_rate, action.acceleration], dtype=np.float64)
+        betas = hypotheses(self.config.beta_low)
+        weights = self.prediction.mixture.weights
+        return BeliefStep(prior, betas, self.config.epsilon, observed, weights)
+
+    def chosen_modes(self, posterior: np.ndarray) -> list[int]:
+        """Step 2: the modes the served set holds."""
+        mass = float(self.overrides.get("mode_mass") or MODE_MASS)
+        floor = self.overrides.get("mode_floor")
+        return select_modes(posterior, mass, MODE_FLOOR if floor is None else float(floor))
+
 
 def next_state(
     prior: AgentState | None, inputs: StateInputs, settings: Settings, engine: FRTEngine
 ) -> tuple[AgentState, Belief]:
-    """The agent's next state (see the module) and its marginal belief over beta."""
-    mixture, config = inputs.prediction.mixture, inputs.config
-    joint = updated_joint(prior, inputs.request, mixture.weights, config)
-    posterior, mode_betas = joint.mode_probs, joint.mode_betas
-    mass = float(inputs.overrides.get("mode_mass") or MODE_MASS)
-    floor = inputs.overrides.get("mode_floor")
-    chosen = select_modes(posterior, mass, MODE_FLOOR if floor is None else float(floor))
-    limits = class_limits(inputs.klass, settings)
-    bounds: dict[int, list[float]] = {}
-    for m in chosen:
-        bounds[m] = mode_bounds(
-            inputs.prediction, m, float(mode_betas[m]), config, settings, limits
+    """The agent's next state (see the module) and its marginal belief over beta: the agent
+    alone through :func:`next_states`."""
+    (result,) = next_states([prior], [inputs], settings, engine)
+    if isinstance(result, APIError):
+        raise result
+    return result
+
+
+def next_states(
+    priors: Sequence[AgentState | None],
+    inputs: Sequence[StateInputs],
+    settings: Settings,
+    engine: FRTEngine,
+) -> list[tuple[AgentState, Belief] | APIError]:
+    """Each agent's next state from its prior (see the module) and its marginal belief over beta,
+    or the error that refuses it (its first mode whose bounds or ranges fail); the steps are done
+    for all agents together."""
+    steps = [i.belief_step(p) for p, i in zip(priors, inputs, strict=True)]
+    joints = summarised(updated_joints(steps))
+    chosen = [i.chosen_modes(j.posterior) for i, j in zip(inputs, joints, strict=True)]  # type: ignore[arg-type]
+    rows = [
+        BoundsRow(
+            inputs[a].prediction,
+            m,
+            float(joints[a].mode_betas[m]),  # type: ignore[index]
+            inputs[a].config,
+            class_limits(inputs[a].klass, settings),
         )
-        check_ranges(engine, inputs.klass, inputs.request.state.speed, bounds[m])
-    main = int(np.argmax(posterior))
-    belief = joint.beta_belief()
+        for a in range(len(inputs))
+        for m in chosen[a]
+    ]
+    fitted = iter(bounds_of_rows(rows, settings))
+    results: list[tuple[AgentState, Belief] | APIError] = []
+    for prior, agent, joint, modes in zip(priors, inputs, joints, chosen, strict=True):
+        bounds = {m: next(fitted) for m in modes}
+        refused = _first_refusal(engine, agent, bounds)
+        if refused is not None:
+            results.append(refused)
+            continue
+        results.append(_assembled(prior, agent, joint, modes, bounds))  # type: ignore[arg-type]
+    return results
+
+
+def _first_refusal(
+    engine: FRTEngine, inputs: StateInputs, bounds: dict[int, list[float] | APIError]
+) -> APIError | None:
+    """The error of the agent's first mode whose bounds failed or fall outside its class's
+    ranges, if any."""
+    for row in bounds.values():
+        if isinstance(row, APIError):
+            return row
+        try:
+            check_ranges(engine, inputs.klass, inputs.request.state.speed, row)
+        except FieldError as exc:
+            return exc
+    return None
+
+
+def _assembled(
+    prior: AgentState | None,
+    inputs: StateInputs,
+    joint: Joint,
+    chosen: list[int],
+    bounds: dict[int, list[float]],
+) -> tuple[AgentState, Belief]:
+    """Step 4: the state (see the module) and the marginal belief over beta."""
+    mixture = inputs.prediction.mixture
+    posterior, mode_betas = joint.posterior, joint.mode_betas
+    main = int(np.argmax(posterior))  # type: ignore[arg-type]
+    belief = Belief(betas=joint.betas, log_probs=joint.marginal)  # type: ignore[arg-type]
     modes = None
     if len(mixture.weights) > 1:
         modes = ModeSet(
             belief=joint.to_dict(),
             first_mean=mixture.means[:, 0].tolist(),
             first_cov=mixture.covs[:, 0].tolist(),
-            posterior=posterior.tolist(),
-            beta=mode_betas.tolist(),
+            posterior=posterior.tolist(),  # type: ignore[union-attr]
+            beta=mode_betas.tolist(),  # type: ignore[union-attr]
             set=chosen,
             bounds=[bounds[m] for m in chosen],
-            mode_mass=mass,
+            mode_mass=float(inputs.overrides.get("mode_mass") or MODE_MASS),
         ).to_dict()
     pose = inputs.request.state
     state = AgentState(

@@ -1,0 +1,189 @@
+"""Steps 1 and 2 of the next state (``service.flows.next_state``) of many agents at once: each
+agent's belief over (mode, beta) updated by its observed action and carried to its new
+prediction, then its mode posterior, each mode's beta and the marginal belief over beta.
+
+The agents are grouped by the shapes of their arrays (the modes of the last prediction and of the
+new one) and each group goes through the joint-belief functions of ``service.flows.modes``, which
+work agent by agent: an agent observed alone gets bit for bit what it gets among others, and a
+single Gaussian gets the paper's filter (``service.flows.confidence``; paper, eq. ``beta`` with
+the epsilon-static transition) bit for bit.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Hashable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from service.flows.confidence import normalised_rows
+from service.flows.modes import (
+    joint_beta_marginals,
+    joint_mode_betas,
+    joint_mode_probs,
+    joint_normalised,
+    joint_of_beta_beliefs,
+    joint_update,
+)
+from service.runtime.stores import AgentState
+
+
+@dataclass(frozen=True)
+class BeliefStep:
+    """What one agent's filter step needs: its last state (None for a new agent), its
+    hypotheses [n] and epsilon, the observed action [2] (None: not scored) and the new
+    prediction's normalised mode weights [M]."""
+
+    prior: AgentState | None
+    betas: np.ndarray
+    epsilon: float
+    action: np.ndarray | None
+    weights: np.ndarray
+
+
+@dataclass(frozen=True)
+class Joint:
+    """One agent's updated belief b(m, beta_i): hypotheses [n], the new prediction's weights
+    [M] and normalised log-probabilities [M, n]; with, from step 2, its mode posterior [M], each
+    mode's point estimate of beta [M] and the marginal belief over beta [n] (log-probabilities)."""
+
+    betas: np.ndarray
+    weights: np.ndarray
+    log_probs: np.ndarray
+    posterior: np.ndarray | None = None
+    mode_betas: np.ndarray | None = None
+    marginal: np.ndarray | None = None
+
+    def to_dict(self) -> dict[str, list[float]]:
+        """The stored form of the joint belief (``JointBelief.to_dict``)."""
+        return {
+            "betas": self.betas.tolist(),
+            "weights": self.weights.tolist(),
+            "log_probs": self.log_probs.tolist(),
+        }
+
+
+def groups(keys: Sequence[Hashable]) -> dict[Hashable, list[int]]:
+    """The indices of ``keys`` by key, each in order."""
+    out: dict[Hashable, list[int]] = {}
+    for i, key in enumerate(keys):
+        out.setdefault(key, []).append(i)
+    return out
+
+
+def _prior_joint(prior: AgentState) -> tuple[np.ndarray, np.ndarray]:
+    """The last state's belief over (mode, beta), normalised [Mp, n], and its weights [Mp]; a
+    single Gaussian's is its beta belief as one mode."""
+    if prior.modes is not None:
+        belief = prior.modes["belief"]
+        log_probs = np.asarray(belief["log_probs"], dtype=np.float64)
+        return joint_normalised(log_probs[None])[0], np.asarray(belief["weights"], np.float64)
+    log_probs = np.asarray(prior.belief["log_probs"], dtype=np.float64)
+    return normalised_rows(log_probs[None]), np.ones(1)
+
+
+def _first_steps(prior: AgentState) -> tuple[np.ndarray, np.ndarray]:
+    """Each mode's first predicted step of the last state: means [Mp, 2], covs [Mp, 2, 2]."""
+    if prior.modes is not None:
+        return (
+            np.asarray(prior.modes["first_mean"], dtype=np.float64),
+            np.asarray(prior.modes["first_cov"], dtype=np.float64),
+        )
+    return (
+        np.asarray(prior.prediction["mean"][:1], dtype=np.float64),
+        np.asarray(prior.prediction["cov"][:1], dtype=np.float64),
+    )
+
+
+#: One agent's belief over (mode, beta) on the way: normalised log-probabilities [M, n] and the
+#: weights [M] its transition mixes back towards.
+_Prior = tuple[np.ndarray, np.ndarray]
+
+
+def _scored(steps: Sequence[BeliefStep], members: list[int], joints: list[_Prior | None]) -> None:
+    """The filter step of the agents ``members`` (one shape, each with a last state and an
+    action), in place."""
+    log_probs = np.stack([joints[i][0] for i in members])  # type: ignore[index]
+    weights = np.stack([joints[i][1] for i in members])  # type: ignore[index]
+    firsts = [_first_steps(steps[i].prior) for i in members]  # type: ignore[arg-type]
+    observed = (
+        np.stack([steps[i].action for i in members]),  # type: ignore[arg-type]
+        np.stack([f[0] for f in firsts]),
+        np.stack([f[1] for f in firsts]),
+    )
+    epsilons = np.array([steps[i].epsilon for i in members], dtype=np.float64)
+    betas = np.stack([steps[i].betas for i in members])
+    updated = joint_update(log_probs, weights, epsilons, betas, observed)
+    for j, i in enumerate(members):
+        joints[i] = (updated[j], weights[j])
+
+
+def _carried(steps: Sequence[BeliefStep], joints: list[_Prior | None]) -> list[np.ndarray]:
+    """Each agent's belief carried to its new prediction's weights: the same posterior when it
+    has as many modes (mode m is mode m), else the marginal belief over beta times the new
+    weights; a new agent's is the prior, uniform over beta, times the new weights."""
+    out: list[np.ndarray | None] = [None] * len(steps)
+    marginals: dict[int, np.ndarray] = {}  # the agents whose belief restarts from one over beta
+    for shape, members in groups([None if j is None else j[0].shape for j in joints]).items():
+        if shape is None:
+            n = steps[members[0]].betas.size
+            uniform = normalised_rows(np.full((len(members), n), -math.log(n)))
+            marginals.update(zip(members, uniform, strict=True))
+            continue
+        moved = [i for i in members if steps[i].weights.size != shape[0]]
+        for i in members:
+            if steps[i].weights.size == shape[0]:
+                out[i] = joints[i][0]  # type: ignore[index]
+        if moved:
+            stacked = np.stack([joints[i][0] for i in moved])  # type: ignore[index]
+            marginals.update(zip(moved, joint_beta_marginals(stacked), strict=True))
+    restarted = list(marginals)
+    for _, members in groups([steps[i].weights.size for i in restarted]).items():
+        ids = [restarted[k] for k in members]
+        weights = np.stack([steps[i].weights for i in ids])
+        joint = joint_of_beta_beliefs(np.stack([marginals[i] for i in ids]), weights)
+        for j, i in enumerate(ids):
+            out[i] = joint[j]
+    return out  # type: ignore[return-value]
+
+
+def updated_joints(steps: Sequence[BeliefStep]) -> list[Joint]:
+    """Step 1 of every agent (see the module): its updated belief over (mode, beta)."""
+    joints: list[_Prior | None] = [
+        None if s.prior is None else _prior_joint(s.prior) for s in steps
+    ]
+    keys = [
+        None if j is None or s.action is None else j[0].shape
+        for s, j in zip(steps, joints, strict=True)
+    ]
+    for key, members in groups(keys).items():
+        if key is not None:
+            _scored(steps, members, joints)
+    carried = _carried(steps, joints)
+    return [
+        Joint(s.betas, s.weights, log_probs) for s, log_probs in zip(steps, carried, strict=True)
+    ]
+
+
+def summarised(joints: Sequence[Joint]) -> list[Joint]:
+    """Step 2 of every agent: its joint with the mode posterior, each mode's beta and the
+    marginal belief over beta."""
+    out: list[Joint | None] = [None] * len(joints)
+    for _, members in groups([j.log_probs.shape for j in joints]).items():
+        log_probs = np.stack([joints[i].log_probs for i in members])
+        betas = np.stack([joints[i].betas for i in members])
+        posterior = joint_mode_probs(log_probs)
+        mode_betas = joint_mode_betas(betas, log_probs)
+        marginal = joint_beta_marginals(log_probs)
+        for j, i in enumerate(members):
+            joint = joints[i]
+            out[i] = Joint(
+                joint.betas,
+                joint.weights,
+                joint.log_probs,
+                posterior[j],
+                mode_betas[j],
+                marginal[j],
+            )
+    return out  # type: ignore[return-value]

@@ -1,0 +1,370 @@
+"""Road maps: an Argoverse 2 map archive parsed, validated and indexed for cutting sets.
+
+An archive (Argoverse 2 ``log_map_archive_*.json``) is a JSON object with three collections, each
+an object from id to element:
+
+* ``drivable_areas``: ``{"id", "area_boundary": [{"x", "y", "z"}, ...]}``, a polygon's ring;
+* ``lane_segments``: ``{"id", "lane_type", "is_intersection", "left_lane_boundary",
+  "right_lane_boundary", "centerline"?, "successors", "predecessors", "left_neighbor_id",
+  "right_neighbor_id", "left_lane_mark_type", "right_lane_mark_type"}``;
+* ``pedestrian_crossings``: ``{"id", "edge1", "edge2"}``, two polylines.
+
+Points are metres in the map's frame (``z`` optional, not used). Fields an element does not need
+are ignored; a top-level key other than the three is an error, and so is every value the map
+uses that is missing or malformed: :class:`MapFormatError` names it by its dotted path
+(``drivable_areas.11055391.area_boundary.3.x``).
+
+The drivable area D is the union of the drivable areas. The map knows the road only within its
+extent (the bounding box of all its elements): the region a set may be cut to is
+
+    R = (D ⊕ margin) ∪ (the plane outside the extent),
+
+so a set is never cut where the map says nothing. R within the extent is indexed once per margin
+(:class:`DrivableRegion`): split into tiles, each with at most ``TILE_VERTICES`` vertices (a
+quadtree: a tile with more is split in four, down to ``MIN_TILE_M``), in an STRtree. Cutting a
+set K reads only the tiles its bounding box meets: K ∩ R = K ∩ (their union ∪ the part of the box
+outside the extent).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import shapely
+from shapely import affinity
+from shapely.geometry.base import BaseGeometry
+
+from reach.frames import Pose
+
+#: The collections of an archive, in the order they are read.
+COLLECTIONS = ("drivable_areas", "lane_segments", "pedestrian_crossings")
+#: Coordinates beyond this (metres) are refused, as in the API's own states.
+COORDINATE_LIMIT = 1e7
+#: Points one archive may hold, over all its elements.
+MAX_POINTS = 2_000_000
+#: A tile of the indexed region is split in four while it has more vertices than this ...
+TILE_VERTICES = 256
+#: ... and is wider than this (metres).
+MIN_TILE_M = 8.0
+
+
+class MapFormatError(ValueError):
+    """An archive that is not a valid map: ``field`` names the offending value (dotted)."""
+
+    def __init__(self, field: str, message: str) -> None:
+        super().__init__(f"{field}: {message}")
+        self.field = field
+        self.message = message
+
+
+@dataclass(frozen=True)
+class Lane:
+    """One lane segment: its boundaries (and centre line, where given) as [n, 2] arrays."""
+
+    id: str
+    lane_type: str
+    is_intersection: bool
+    left: np.ndarray
+    right: np.ndarray
+    centerline: np.ndarray | None
+    successors: tuple[int, ...]
+    predecessors: tuple[int, ...]
+
+
+@dataclass(frozen=True)
+class Crossing:
+    """One pedestrian crossing: its two edges as [n, 2] arrays."""
+
+    id: str
+    edge1: np.ndarray
+    edge2: np.ndarray
+
+
+class _Points:
+    """Counts the points read against ``limit`` (:data:`MAX_POINTS`)."""
+
+    def __init__(self, limit: int) -> None:
+        self.limit = limit
+        self.count = 0
+
+    def read(self, value: Any, field: str, at_least: int) -> np.ndarray:
+        """A list of ``{x, y, z?}`` as an [n, 2] array (finite, within the coordinate limit)."""
+        if not isinstance(value, list):
+            raise MapFormatError(field, "must be a list of points {x, y, z}")
+        if len(value) < at_least:
+            raise MapFormatError(field, f"needs at least {at_least} points, got {len(value)}")
+        self.count += len(value)
+        if self.count > self.limit:
+            raise MapFormatError(field, f"the map holds more than {self.limit} points")
+        out = np.empty((len(value), 2))
+        for i, point in enumerate(value):
+            if not isinstance(point, dict):
+                raise MapFormatError(f"{field}.{i}", "must be a point {x, y, z}")
+            for k, name in enumerate(("x", "y")):
+                out[i, k] = _coordinate(point, name, f"{field}.{i}.{name}", required=True)
+            _coordinate(point, "z", f"{field}.{i}.z", required=False)
+        return out
+
+
+def _coordinate(point: dict, name: str, field: str, required: bool) -> float:
+    if name not in point:
+        if required:
+            raise MapFormatError(field, "missing")
+        return 0.0
+    value = point[name]
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise MapFormatError(field, f"must be a number, got {type(value).__name__}")
+    if not math.isfinite(value) or abs(value) > COORDINATE_LIMIT:
+        raise MapFormatError(field, f"must be finite and within ±{COORDINATE_LIMIT:g} m")
+    return float(value)
+
+
+def _element(collection: dict, field: str) -> list[tuple[str, dict]]:
+    """The (id, element) pairs of a collection, each element an object."""
+    if not isinstance(collection, dict):
+        raise MapFormatError(field, "must be an object from id to element")
+    out = []
+    for key, element in collection.items():
+        if not isinstance(element, dict):
+            raise MapFormatError(f"{field}.{key}", "must be an object")
+        if "id" in element and (
+            isinstance(element["id"], bool) or not isinstance(element["id"], int | str)
+        ):
+            raise MapFormatError(f"{field}.{key}.id", "must be an integer or a string")
+        out.append((str(key), element))
+    return out
+
+
+def _ids(element: dict, name: str, field: str) -> tuple[int, ...]:
+    value = element.get(name, [])
+    if not isinstance(value, list) or any(
+        isinstance(v, bool) or not isinstance(v, int) for v in value
+    ):
+        raise MapFormatError(f"{field}.{name}", "must be a list of integer ids")
+    return tuple(value)
+
+
+def _lane(key: str, element: dict, field: str, points: _Points) -> Lane:
+    for name in ("left_neighbor_id", "right_neighbor_id"):
+        value = element.get(name)
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int)):
+            raise MapFormatError(f"{field}.{name}", "must be an integer id or null")
+    lane_type = element.get("lane_type")
+    if not isinstance(lane_type, str) or not lane_type:
+        raise MapFormatError(f"{field}.lane_type", "must be a string (VEHICLE, BIKE, BUS)")
+    is_intersection = element.get("is_intersection", False)
+    if not isinstance(is_intersection, bool):
+        raise MapFormatError(f"{field}.is_intersection", "must be true or false")
+    centerline = element.get("centerline")
+    return Lane(
+        id=key,
+        lane_type=lane_type,
+        is_intersection=is_intersection,
+        left=points.read(element.get("left_lane_boundary"), f"{field}.left_lane_boundary", 2),
+        right=points.read(element.get("right_lane_boundary"), f"{field}.right_lane_boundary", 2),
+        centerline=None
+        if centerline is None
+        else points.read(centerline, f"{field}.centerline", 2),
+        successors=_ids(element, "successors", field),
+        predecessors=_ids(element, "predecessors", field),
+    )
+
+
+def _drivable_polygon(ring: np.ndarray, field: str) -> BaseGeometry:
+    """The polygon a drivable area's boundary encloses (a self-touching ring made valid)."""
+    polygon = shapely.make_valid(shapely.Polygon(ring))
+    polygonal = [p for p in shapely.get_parts(polygon) if isinstance(p, shapely.Polygon)]
+    if not polygonal or sum(p.area for p in polygonal) <= 0.0:
+        raise MapFormatError(field, "encloses no area")
+    return shapely.union_all(polygonal)
+
+
+def parse_archive(
+    archive: Any, max_points: int = MAX_POINTS
+) -> tuple[list[BaseGeometry], list[Lane], list[Crossing]]:
+    """The drivable polygons, lanes and crossings of an archive (already JSON-decoded)."""
+    if not isinstance(archive, dict):
+        raise MapFormatError("body", "must be a JSON object with " + ", ".join(COLLECTIONS))
+    for key in archive:
+        if key not in COLLECTIONS:
+            raise MapFormatError(
+                str(key), "unknown field (an archive has " + ", ".join(COLLECTIONS) + ")"
+            )
+    if "drivable_areas" not in archive:
+        raise MapFormatError("drivable_areas", "missing")
+    points = _Points(max_points)
+    areas = []
+    for key, element in _element(archive["drivable_areas"], "drivable_areas"):
+        field = f"drivable_areas.{key}.area_boundary"
+        areas.append(_drivable_polygon(points.read(element.get("area_boundary"), field, 3), field))
+    if not areas:
+        raise MapFormatError("drivable_areas", "must hold at least one drivable area")
+    lanes = [
+        _lane(key, element, f"lane_segments.{key}", points)
+        for key, element in _element(archive.get("lane_segments", {}), "lane_segments")
+    ]
+    crossings = [
+        Crossing(
+            key,
+            points.read(element.get("edge1"), f"pedestrian_crossings.{key}.edge1", 2),
+            points.read(element.get("edge2"), f"pedestrian_crossings.{key}.edge2", 2),
+        )
+        for key, element in _element(
+            archive.get("pedestrian_crossings", {}), "pedestrian_crossings"
+        )
+    ]
+    return areas, lanes, crossings
+
+
+def _tiles(geometry: BaseGeometry, bounds: tuple[float, ...], out: list[BaseGeometry]) -> None:
+    """``geometry``'s polygonal parts within ``bounds``, split in quadrants until each tile has at
+    most ``TILE_VERTICES`` vertices or is ``MIN_TILE_M`` wide, appended to ``out``."""
+    x0, y0, x1, y1 = bounds
+    if geometry.is_empty:
+        return
+    if (
+        shapely.get_num_coordinates(geometry) <= TILE_VERTICES
+        or max(x1 - x0, y1 - y0) <= MIN_TILE_M
+    ):
+        out.extend(p for p in shapely.get_parts(geometry) if isinstance(p, shapely.Polygon))
+        return
+    xm, ym = (x0 + x1) / 2.0, (y0 + y1) / 2.0
+    for quadrant in ((x0, y0, xm, ym), (xm, y0, x1, ym), (x0, ym, xm, y1), (xm, ym, x1, y1)):
+        part = shapely.intersection(geometry, shapely.box(*quadrant))
+        polygonal = [p for p in shapely.get_parts(part) if isinstance(p, shapely.Polygon)]
+        if polygonal:
+            _tiles(shapely.union_all(polygonal), quadrant, out)
+
+
+class DrivableRegion:
+    """R = (D ⊕ margin) ∪ (the plane outside the map's extent), indexed in tiles (see the module)."""
+
+    def __init__(self, drivable: BaseGeometry, extent: tuple[float, ...], margin: float) -> None:
+        grown = drivable.buffer(margin, quad_segs=4) if margin > 0 else drivable
+        self.margin = margin
+        self.grown = grown
+        shapely.prepare(grown)
+        self.extent = extent
+        self.extent_box = shapely.box(*extent)
+        tiles: list[BaseGeometry] = []
+        _tiles(grown, grown.bounds, tiles)
+        self.tiles = np.array(tiles, dtype=object)
+        self.tree = shapely.STRtree(self.tiles)
+
+    def near(self, bounds: tuple[float, ...]) -> BaseGeometry:
+        """R within (at least) the box ``bounds`` (x0, y0, x1, y1): the union of the tiles the box
+        meets and of the part of the box outside the extent."""
+        box = shapely.box(*bounds)
+        parts = list(self.tiles[self.tree.query(box)])
+        x0, y0, x1, y1 = bounds
+        e0, f0, e1, f1 = self.extent
+        if x0 < e0 or y0 < f0 or x1 > e1 or y1 > f1:
+            parts.append(box.difference(self.extent_box))
+        if not parts:
+            return shapely.Polygon()
+        return parts[0] if len(parts) == 1 else shapely.union_all(parts)
+
+    def covers_xy(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Whether each point lies in R."""
+        x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+        e0, f0, e1, f1 = self.extent
+        outside = (x < e0) | (x > e1) | (y < f0) | (y > f1)
+        return outside | shapely.intersects_xy(self.grown, x, y)
+
+
+def cut_to(k_set: BaseGeometry, region: BaseGeometry) -> BaseGeometry:
+    """K ∩ region, K itself where the region holds it (a prepared test, no overlay)."""
+    if k_set.is_empty:
+        return k_set
+    shapely.prepare(region)
+    if region.contains(k_set):
+        return k_set
+    return k_set.intersection(region)
+
+
+class RoadMap:
+    """One map: the drivable area D (one shapely geometry), its lanes and crossings, its extent,
+    and the region R of each margin asked for (built once, kept)."""
+
+    def __init__(
+        self, areas: list[BaseGeometry], lanes: list[Lane], crossings: list[Crossing]
+    ) -> None:
+        self.drivable = shapely.union_all(areas)
+        self.lanes = tuple(lanes)
+        self.crossings = tuple(crossings)
+        parts = [self.drivable]
+        parts += [shapely.multipoints(np.vstack([lane.left, lane.right])) for lane in lanes]
+        parts += [shapely.multipoints(np.vstack([c.edge1, c.edge2])) for c in crossings]
+        self.extent: tuple[float, ...] = tuple(
+            float(v) for v in shapely.total_bounds(np.array(parts, dtype=object))
+        )
+        self.areas = len(areas)
+        self._regions: dict[float, DrivableRegion] = {}
+        self._lock = threading.Lock()
+
+    @classmethod
+    def from_archive(cls, archive: Any, max_points: int = MAX_POINTS) -> RoadMap:
+        return cls(*parse_archive(archive, max_points))
+
+    @classmethod
+    def from_json(cls, text: str | bytes, max_points: int = MAX_POINTS) -> RoadMap:
+        """The map of an archive's JSON text (an error naming ``body`` if it is not JSON)."""
+        try:
+            archive = json.loads(text)
+        except (ValueError, RecursionError) as exc:
+            raise MapFormatError("body", f"not JSON: {exc}") from None
+        return cls.from_archive(archive, max_points)
+
+    @classmethod
+    def load(cls, path: str | Path, max_points: int = MAX_POINTS) -> RoadMap:
+        return cls.from_json(Path(path).read_bytes(), max_points)
+
+    def region(self, margin: float) -> DrivableRegion:
+        """R for ``margin`` (metres, >= 0), built on first use."""
+        if not margin >= 0.0:
+            raise ValueError(f"margin must be >= 0, got {margin!r}")
+        with self._lock:
+            if margin not in self._regions:
+                self._regions[margin] = DrivableRegion(self.drivable, self.extent, margin)
+            return self._regions[margin]
+
+    def cut(self, k_world: BaseGeometry, margin: float) -> BaseGeometry:
+        """K ∩ R for a set K in the map's frame: R read near K's bounding box only."""
+        if k_world.is_empty:
+            return k_world
+        return cut_to(k_world, self.region(margin).near(k_world.bounds))
+
+    def on_road(self, x: float, y: float, margin: float) -> bool:
+        """Whether the point (x, y) lies in R."""
+        return bool(self.region(margin).covers_xy(np.array([x]), np.array([y]))[0])
+
+    def region_in_frame(self, pose: Pose, bounds: tuple[float, ...], margin: float) -> BaseGeometry:
+        """R around the box ``bounds`` of the frame of ``pose`` (the human frame), in that frame:
+        the tiles the box's world bounding box meets, moved into the frame."""
+        x0, y0, x1, y1 = bounds
+        c, s = math.cos(pose.heading), math.sin(pose.heading)
+        corners = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
+        wx = pose.x + c * corners[:, 0] - s * corners[:, 1]
+        wy = pose.y + s * corners[:, 0] + c * corners[:, 1]
+        world = self.region(margin).near((wx.min(), wy.min(), wx.max(), wy.max()))
+        # p_human = R(-heading) (p_world - (x, y))
+        offset_x = -(c * pose.x + s * pose.y)
+        offset_y = s * pose.x - c * pose.y
+        return affinity.affine_transform(world, [c, s, -s, c, offset_x, offset_y])
+
+    def summary(self) -> dict[str, Any]:
+        """Counts, extent and drivable area, for the API."""
+        return {
+            "drivable_areas": self.areas,
+            "lane_segments": len(self.lanes),
+            "pedestrian_crossings": len(self.crossings),
+            "extent": list(self.extent),
+            "drivable_area_m2": float(self.drivable.area),
+            "vertices": int(shapely.get_num_coordinates(self.drivable)),
+        }

@@ -10,7 +10,8 @@ from fastapi import Depends, FastAPI
 
 from service.api.auth import BearerAuthMiddleware, bearer_scheme
 from service.api.errors import install_error_handlers
-from service.api.middleware import BodySizeLimitMiddleware, RequestContextMiddleware
+from service.api.map_body_limit import BodySizeLimitWithMaps
+from service.api.middleware import RequestContextMiddleware
 from service.api.routes import (
     agents,
     collision,
@@ -18,6 +19,7 @@ from service.api.routes import (
     contours,
     frames,
     health,
+    maps,
     model,
     stateless,
     stream,
@@ -55,9 +57,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     install_error_handlers(app)
     # Added last = outermost: context (timing, id, logs) -> auth -> body limit -> routes.
     app.add_middleware(
-        BodySizeLimitMiddleware,
+        BodySizeLimitWithMaps,
         max_bytes=settings.max_body_bytes,
         max_check_bytes=settings.max_check_body_bytes,
+        max_map_bytes=settings.max_map_bytes,
     )
     app.add_middleware(BearerAuthMiddleware, token=settings.auth_token)
     app.add_middleware(
@@ -79,7 +82,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     app.include_router(health.router)
     checked = [Depends(bearer_scheme), Depends(query_parameters_checked)]
-    for router in (agents, frames, collision, contours, constraints, stateless, model):
+    for router in (agents, frames, collision, contours, constraints, stateless, model, maps):
         app.include_router(router.router, dependencies=checked)
     app.include_router(stream.router)
     if settings.viewer:

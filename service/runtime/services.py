@@ -27,6 +27,7 @@ from service.runtime.audit import AuditLedger, RollingCoverage, Scored, count_au
 from service.runtime.demand import ExactDemand
 from service.runtime.exact_worker import ExactTask
 from service.runtime.jobs import FRTJob, job_for
+from service.runtime.maps import MapRegistry, registry_for
 from service.runtime.memory import freeze_start_up_objects, keep_freed_memory
 from service.runtime.metrics import Metrics
 from service.runtime.model_loading import load_model
@@ -75,6 +76,8 @@ class Services:
     #: The coverage audit: each agent's recent versions, and the fleet's rolling coverage.
     audit: AuditLedger = field(default_factory=lambda: AuditLedger(32, 10_000), repr=False)
     coverage: RollingCoverage = field(default_factory=lambda: RollingCoverage(1000), repr=False)
+    #: The maps whose drivable area cuts sets (docs/maps.md).
+    maps: MapRegistry = field(default_factory=lambda: MapRegistry(16, 1.0, 2_000_000), repr=False)
 
     @classmethod
     def build(cls, settings: Settings) -> Services:
@@ -100,6 +103,7 @@ class Services:
                 settings.audit_max_versions, settings.max_agents, ttl_s=settings.agent_ttl_s
             ),
             coverage=RollingCoverage(settings.audit_window),
+            maps=registry_for(settings),
         )
 
     # ------------------------------------------------------------------ lifecycle

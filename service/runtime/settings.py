@@ -114,6 +114,19 @@ class Settings(BaseSettings):
     #: Time slices one contour request may ask for.
     max_slices: int = Field(16, ge=1)
 
+    # Maps (docs/maps.md): Argoverse 2 map archives whose drivable area cuts the sets.
+    #: A map archive loaded at start-up (``FRT_MAP=path``), registered as ``map_id``.
+    map: Path | None = None
+    map_id: str = Field("default", pattern=r"^[A-Za-z0-9_.:\-]{1,128}$")
+    #: The drivable area is grown by this (metres) before it cuts a set: R = D ⊕ margin.
+    map_margin_m: float = Field(1.0, ge=0.0, le=50.0)
+    #: Maps held at once (``PUT /v1/maps/{map_id}`` of a new id past it: 409).
+    max_maps: int = Field(16, ge=1)
+    #: The body limit of ``PUT /v1/maps/{map_id}`` (413 past it) ...
+    max_map_bytes: int = Field(16_000_000, ge=1024)
+    #: ... and the points one archive may hold (422 past it).
+    max_map_points: int = Field(2_000_000, ge=1)
+
     #: Whether sets are cut by the value network: "auto" evaluates it unless its model card's
     #: evaluation found that it cuts nothing inside the certified geometry; "on", "off" force it.
     network: Literal["auto", "on", "off"] = "auto"

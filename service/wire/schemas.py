@@ -762,3 +762,50 @@ class Readiness(Response):
     model: str | None
     detail: str | None = None
     active: ActiveParts | None = None
+
+
+# ------------------------------------------------------------------------------------------- maps
+
+
+class MapArchive(BaseModel):
+    """An Argoverse 2 map archive (``log_map_archive_*.json``): each collection an object from id
+    to element. Validated by ``reach.road_map`` (a 422 names the field by its dotted path); this
+    model documents the body."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    drivable_areas: dict[str, dict[str, Any]] = Field(
+        description="id -> {id, area_boundary: [{x, y, z}, ...]}: the polygons a car may drive on"
+    )
+    lane_segments: dict[str, dict[str, Any]] = Field(
+        default_factory=dict,
+        description="id -> {id, lane_type, is_intersection, left_lane_boundary, "
+        "right_lane_boundary, centerline, successors, predecessors, left_neighbor_id, "
+        "right_neighbor_id, ...}",
+    )
+    pedestrian_crossings: dict[str, dict[str, Any]] = Field(
+        default_factory=dict, description="id -> {id, edge1, edge2}: two polylines each"
+    )
+
+
+class MapResponse(Response):
+    map_id: str
+    source: Literal["file", "api"] = Field(description="FRT_MAP at start-up, or PUT")
+    size_bytes: int
+    drivable_areas: int
+    lane_segments: int
+    pedestrian_crossings: int
+    extent: list[float] = Field(
+        description="[x_min, y_min, x_max, y_max] of every element: outside it nothing is cut"
+    )
+    drivable_area_m2: float
+    vertices: int = Field(description="vertices of the drivable area's union")
+    margin_m: float = Field(description="the drivable area is grown by this before it cuts")
+    replaced: bool | None = Field(
+        None, description="PUT: whether the id held a map before (null on GET)"
+    )
+
+
+class MapDeleteResponse(Response):
+    map_id: str
+    deleted: bool

@@ -1,0 +1,125 @@
+"""The maps this server holds, by id: one loaded at start-up (``FRT_MAP``, as ``FRT_MAP_ID``) and
+those registered over the API (``PUT /v1/maps/{map_id}``), and the sets cut by them.
+
+A map is an Argoverse 2 map archive (``reach.road_map``); its region R for the server's margin
+(``FRT_MAP_MARGIN_M``) is built when it is registered, so no request pays for it. Registering an
+id again replaces its map; sets cut by the map before are not reused (each registration has its
+own generation).
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+from itertools import count
+from pathlib import Path
+from typing import Any
+
+from reach.road_map import MapFormatError, RoadMap
+from service.runtime.settings import Settings
+from service.wire.errors import APIError, FieldError
+
+
+@dataclass(frozen=True)
+class MapEntry:
+    """One registered map."""
+
+    map_id: str
+    road: RoadMap
+    #: Distinct per registration: a replaced map's cut sets are not reused.
+    generation: int
+    #: "file" (``FRT_MAP``) or "api".
+    source: str
+    size_bytes: int
+
+    def summary(self) -> dict[str, Any]:
+        return {
+            "map_id": self.map_id,
+            "source": self.source,
+            "size_bytes": self.size_bytes,
+            **self.road.summary(),
+        }
+
+
+class MapRegistry:
+    """Maps by id, at most ``max_maps``; each one's region R for ``margin`` built on registering."""
+
+    def __init__(self, max_maps: int, margin: float, max_points: int) -> None:
+        self.max_maps = max_maps
+        self.margin = margin
+        self.max_points = max_points
+        self._maps: dict[str, MapEntry] = {}
+        self._lock = threading.Lock()
+        self._generations = count(1)
+
+    def parse(self, raw: bytes) -> RoadMap:
+        """The map of an archive's JSON bytes, its region built (blocking: call from a thread);
+        422 naming the field that is wrong."""
+        try:
+            road = RoadMap.from_json(raw, self.max_points)
+        except MapFormatError as exc:
+            raise FieldError(exc.field, exc.message) from None
+        road.region(self.margin)
+        return road
+
+    def put(
+        self, map_id: str, road: RoadMap, source: str, size_bytes: int
+    ) -> tuple[MapEntry, bool]:
+        """Register ``road`` as ``map_id`` (replacing the map of that id): (entry, replaced).
+        409 if the server holds ``max_maps`` other maps."""
+        with self._lock:
+            replaced = map_id in self._maps
+            if not replaced and len(self._maps) >= self.max_maps:
+                raise APIError(
+                    409,
+                    f"the server holds {self.max_maps} maps (FRT_MAX_MAPS): delete one or "
+                    "replace one by its id",
+                )
+            entry = MapEntry(map_id, road, next(self._generations), source, size_bytes)
+            self._maps[map_id] = entry
+        return entry, replaced
+
+    def load_file(self, path: Path, map_id: str) -> MapEntry:
+        """Register the archive at ``path`` as ``map_id`` (at start-up; a bad file raises)."""
+        raw = Path(path).read_bytes()
+        try:
+            road = self.parse(raw)
+        except FieldError as exc:
+            raise ValueError(f"FRT_MAP={path}: {exc.field}: {exc.detail}") from None
+        return self.put(map_id, road, "file", len(raw))[0]
+
+    def get(self, map_id: str) -> MapEntry | None:
+        return self._maps.get(map_id)
+
+    def require(self, map_id: str, field: str = "map_id") -> MapEntry:
+        """The map of ``map_id``; 422 naming ``field`` if there is none."""
+        entry = self._maps.get(map_id)
+        if entry is None:
+            raise FieldError(field, f"unknown map {map_id!r} (register it: PUT /v1/maps/{map_id})")
+        return entry
+
+    def found(self, map_id: str) -> MapEntry:
+        """The map of ``map_id``; 404 if there is none (the map's own routes)."""
+        entry = self._maps.get(map_id)
+        if entry is None:
+            raise APIError(404, f"unknown map {map_id!r}")
+        return entry
+
+    def delete(self, map_id: str) -> MapEntry:
+        """Forget the map of ``map_id`` (404 if none)."""
+        with self._lock:
+            entry = self._maps.pop(map_id, None)
+            if entry is None:
+                raise APIError(404, f"unknown map {map_id!r}")
+        return entry
+
+    def __len__(self) -> int:
+        return len(self._maps)
+
+
+def registry_for(settings: Settings) -> MapRegistry:
+    """The server's registry, with the map of ``FRT_MAP`` (if set) loaded as ``FRT_MAP_ID``."""
+    registry = MapRegistry(settings.max_maps, settings.map_margin_m, settings.max_map_points)
+    if settings.map is not None:
+        registry.load_file(settings.map, settings.map_id)
+    return registry

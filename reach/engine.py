@@ -15,7 +15,10 @@ How a set is built (human frame: origin at the human, heading 0):
 * between instants a car moves at most v_max * slice_dt / 2 from the nearer one, so the tube is the
   union of the instants' fields dilated on the grid by that much, each cut to the outer polygons of
   its interval: a running minimum of fields, contoured once (``FieldTubeSet``) - no polygon unions
-  of near-identical slices, which made GEOS crawl for a parked car.
+  of near-identical slices, which made GEOS crawl for a parked car;
+* where no value field cuts and the outer bound alone shows every interval's polygon within reach
+  of its instants' polygons (``reach.held``), the tube is the union of those polygons anyway: the
+  set is built without its fields, which are computed only if something asks for them.
 
 Every exact set is contained in the outer bound by construction, so the outer bound is a valid
 conservative answer whenever the exact set is not ready (API.md: "conservative": true).
@@ -23,6 +26,7 @@ conservative answer whenever the exact set is not ready (API.md: "conservative":
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -31,8 +35,15 @@ import numpy as np
 
 from reach.contract import BOUND_COLUMNS, HORIZON_S, INITIAL_SET, PARAM_RANGES, InitialSet
 from reach.field_stack import FAR, WindowStack, block_reduce, dilate_discs, span_reduce
-from reach.field_tube import MIN_NODES_INSIDE, FieldTubeSet, Lattice, SliceFields
+from reach.field_tube import (
+    MIN_NODES_INSIDE,
+    DeferredSliceFields,
+    FieldTubeSet,
+    Lattice,
+    SliceFields,
+)
 from reach.frames import Pose
+from reach.held import held_intervals
 from reach.notch import NOTCH_HEADING, NOTCH_STAGES, NotchCut
 from reach.outer_bound import SUPPORT_DIRECTIONS, OuterBound, outer_bound
 from reach.partition import bin_headings, max_turn_rate, partition_supports
@@ -208,12 +219,43 @@ class FRTEngine:
         (1 for the first; default the last, the finest).
 
         Every instant's fields are computed together on windows padded to one shape
-        (``reach.field_stack``)."""
+        (``reach.field_stack``), except where no field could change the set: uncut by a value
+        field or the notch, with every interval held by its outer polygon as the outer bound
+        alone shows (``reach.held``), the set is those polygons and its fields are computed only
+        if something asks for them (``_held_set``)."""
         bounds = np.asarray(bounds, dtype=np.float32)
         ob = self.outer(v_start, bounds)
         rows = [j * self.outer_steps_per_slice for j in range(self.n_slices)]
         cut = self.notch_instants(ob, rows)
         cut_now = (self.notch_cut if notch_cut is None else notch_cut) and bool(cut.any())
+        frt = None
+        if not cut_now and not self.cuts(v_start, bounds):
+            frt = self._held_set(pose, ob, rows, v_start, bounds)
+        if frt is None:
+            notch = None
+            if cut_now:
+                notch = self._notch(
+                    ob, rows, v_start, bounds, cut, notch_stage or len(NOTCH_STAGES)
+                )
+            frt = self._fields_set(pose, ob, rows, v_start, bounds, notch)
+        frt.notch_possible = bool(cut.any())
+        last = self.n_slices - 1
+        # In increasing order: each tube (and each cut region) grows from the one before.
+        for j in range(last if frt.notch is not None else min(tubes_upto + 1, last)):
+            frt.tube(j)
+        frt.tube(last)
+        return frt
+
+    def _fields_set(
+        self,
+        pose: Pose,
+        ob: OuterBound,
+        rows: list[int],
+        v_start: float,
+        bounds: np.ndarray,
+        notch: NotchCut | None,
+    ) -> FieldTubeSet:
+        """The set drawn from its fields: every instant's and every interval's, on the grid."""
         grid = self._grid(ob, rows)
         field, evaluations = self._instant_fields(grid, ob, rows, v_start, bounds)
         sweep, held = self._interval_fields(grid, field, ob)
@@ -228,28 +270,74 @@ class FRTEngine:
             rows,
             self._box_tube(pose, ob),
             coarse=grid.coarse,
-            notch=(
-                self._notch(ob, rows, v_start, bounds, cut, notch_stage or len(NOTCH_STAGES))
-                if cut_now
-                else None
-            ),
-            notch_possible=bool(cut.any()),
+            notch=notch,
             outer_held=held,
             instants_uncut=not self.cuts(v_start, bounds),
         )
         frt.evaluations = evaluations
-        last = self.n_slices - 1
-        # In increasing order: each tube (and each cut region) grows from the one before.
-        for j in range(last if frt.notch is not None else min(tubes_upto + 1, last)):
-            frt.tube(j)
-        frt.tube(last)
         return frt
 
-    def _grid(self, ob: OuterBound, rows: list[int]) -> _InstantGrid:
+    def _held_set(
+        self, pose: Pose, ob: OuterBound, rows: list[int], v_start: float, bounds: np.ndarray
+    ) -> FieldTubeSet | None:
+        """The set of an uncut setting whose every interval is its outer polygon, without its
+        fields: None unless each interval is held by its polygon as the outer bound alone shows
+        it (``reach.held``) or touches an instant the grid cannot resolve (``coarse``, counted on
+        the grid as ``_grid`` counts it). Such a set's slices past the first, its intervals and
+        its tubes are outer polygons and their unions, as the fields would make them; its first
+        instant is the initial disc on the grid, as ``_grid`` draws it, and the other fields are
+        computed if something asks for them (``DeferredSliceFields``)."""
+        k = self.outer_steps_per_slice
+        if k != SWEEPS_PER_WINDOW:  # the outer tube's windows are not the intervals
+            return None
+        lattice, windows = self._windows(ob, rows)
+        xs, ys = windows.xs[0][: windows.w[0]], windows.ys[0][: windows.h[0]]
+        first = (np.hypot(xs[None, :], ys[:, None]) - self.radius_m).astype(np.float32)
+        inside = windows.nodes_inside(ob.directions, ob.support_at[rows], MIN_NODES_INSIDE)
+        inside[0] = np.count_nonzero(first <= 0)
+        coarse = inside < MIN_NODES_INSIDE
+        intervals = block_reduce(ob.sweep_support, k, np.maximum)
+        speed = block_reduce(ob.sweep_speed_max, k, np.maximum)
+        held = held_intervals(
+            ob.directions,
+            ob.support_at[rows],
+            np.concatenate([intervals[:1], intervals]),
+            np.concatenate([[0.0], speed * (self.slice_dt / 2)]),
+            self.radius_m,
+            np.ones(self.n_slices, dtype=bool),
+        )
+        if not np.all(held[1:] | coarse[1:] | coarse[:-1]):
+            return None
+        fields = functools.cache(lambda: self._fields(ob, rows, v_start, bounds))
+        known = (first, *[None] * (self.n_slices - 1))
+        return FieldTubeSet(
+            pose,
+            self.slice_dt,
+            self.horizon,
+            lattice,
+            DeferredSliceFields(windows.k0, windows.i0, known, lambda: fields()[0]),
+            DeferredSliceFields(windows.k0, windows.i0, known, lambda: fields()[1]),
+            ob,
+            rows,
+            self._box_tube(pose, ob),
+            coarse=coarse,
+            outer_held=held,
+            instants_uncut=True,
+        )
+
+    def _fields(
+        self, ob: OuterBound, rows: list[int], v_start: float, bounds: np.ndarray
+    ) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...]]:
+        """Every instant's and every interval's field values, as ``_fields_set`` draws them."""
+        grid = self._grid(ob, rows)
+        field, _ = self._instant_fields(grid, ob, rows, v_start, bounds)
+        sweep, _ = self._interval_fields(grid, field, ob)
+        return grid.slices(field).values, grid.slices(sweep).values  # type: ignore[return-value]
+
+    def _windows(self, ob: OuterBound, rows: list[int]) -> tuple[Lattice, WindowStack]:
         """One lattice for every instant (the node budget spread over the instants' areas, an
-        ellipse in each outer box), each instant's window on it, and the signed distances there to
-        the instant's outer polygon and to its interval's (the support functions' maximum over
-        [s_(j-1), s_j]); instant 0 is the initial disc."""
+        ellipse in each outer box) and each instant's window on it: the sweeps of
+        [s_(j-1), s_(j+1)] (both neighbours' intervals fit in it)."""
         k = self.outer_steps_per_slice
         box_at = ob.box_at[rows[1:]]
         areas = (box_at[:, 1] - box_at[:, 0]) * (box_at[:, 3] - box_at[:, 2]) * (math.pi / 4)
@@ -261,23 +349,22 @@ class FRTEngine:
             nx=math.ceil((ob.sweep[:, 1].max() - ob.sweep[:, 0].min()) / step) + 17,
             ny=math.ceil((ob.sweep[:, 3].max() - ob.sweep[:, 2].min()) / step) + 17,
         )
-        # Slice j's window spans the sweeps of [s_(j-1), s_(j+1)] (both neighbours' intervals fit
-        # in it).
-        lo = np.stack(
-            [
-                span_reduce(block_reduce(ob.sweep[:, 0], k, np.minimum), np.minimum),
-                span_reduce(block_reduce(ob.sweep[:, 2], k, np.minimum), np.minimum),
-            ],
-            axis=1,
-        )
-        hi = np.stack(
-            [
-                span_reduce(block_reduce(ob.sweep[:, 1], k, np.maximum), np.maximum),
-                span_reduce(block_reduce(ob.sweep[:, 3], k, np.maximum), np.maximum),
-            ],
-            axis=1,
+        lo, hi = (
+            np.stack(
+                [span_reduce(block_reduce(ob.sweep[:, c], k, reduce), reduce) for c in columns],
+                axis=1,
+            )
+            for columns, reduce in (((0, 2), np.minimum), ((1, 3), np.maximum))
         )
         windows = WindowStack.make(lo, hi, (lattice.x0, lattice.y0), step, (lattice.nx, lattice.ny))
+        return lattice, windows
+
+    def _grid(self, ob: OuterBound, rows: list[int]) -> _InstantGrid:
+        """The lattice and windows (``_windows``) and the signed distances there to each
+        instant's outer polygon and to its interval's (the support functions' maximum over
+        [s_(j-1), s_j]); instant 0 is the initial disc."""
+        k = self.outer_steps_per_slice
+        lattice, windows = self._windows(ob, rows)
         valid = windows.valid()
         interval_supports = block_reduce(ob.sweep_support, k, np.maximum)
         clip, interval64 = windows.polygon_fields(

@@ -102,6 +102,23 @@ class WindowStack:
         )
         return list(out)
 
+    def nodes_inside(self, directions: np.ndarray, supports: np.ndarray, limit: int) -> np.ndarray:
+        """Per window j, how many of its own nodes lie inside instant j's polygon of support
+        ``supports[j]`` as :meth:`polygon_fields` draws it (its value there, rounded to float32,
+        is <= 0), counted up to ``limit`` ([J] int: ``limit`` where there are as many or more).
+        Compiled (``_nodes_inside``, the rows nearest the window's middle first)."""
+        angles = np.asarray(directions, dtype=np.float64)
+        return _nodes_inside(  # type: ignore[no-any-return]
+            np.ascontiguousarray(self.xs, dtype=np.float64),
+            np.ascontiguousarray(self.ys, dtype=np.float64),
+            self.h,
+            self.w,
+            np.cos(angles),
+            np.sin(angles),
+            np.ascontiguousarray(supports, dtype=np.float64),
+            limit,
+        )
+
     def shifted(self, stack: np.ndarray, src: int, dst: int) -> np.ndarray:
         """Window ``src``'s values of ``stack`` seen from window ``dst`` ([H, W]; FAR where ``src``
         has none)."""
@@ -166,6 +183,44 @@ def _polygon_fields(
     return out
 
 
+@numba.njit(cache=True)
+def _nodes_inside(
+    xs: np.ndarray,
+    ys: np.ndarray,
+    heights: np.ndarray,
+    widths: np.ndarray,
+    cosines: np.ndarray,
+    sines: np.ndarray,
+    supports: np.ndarray,
+    limit: int,
+) -> np.ndarray:
+    """``WindowStack.nodes_inside``: each node's value as ``_polygon_fields`` computes it, rounded
+    to float32, compared with 0; rows from the middle of the window outwards, stopping at
+    ``limit``."""
+    count, directions = supports.shape
+    inside = np.zeros(count, dtype=np.int64)
+    for j in range(count):
+        rows, middle = heights[j], heights[j] // 2
+        for i in range(2 * rows):  # middle, middle + 1, middle - 1, middle + 2, ...
+            h = middle + (i + 1) // 2 if i % 2 else middle - i // 2
+            if h < 0 or h >= rows:
+                continue
+            y = ys[j, h]
+            for w in range(widths[j]):
+                x = xs[j, w]
+                best = -np.inf
+                for m in range(directions):
+                    along = x * cosines[m] + y * sines[m] - supports[j, m]
+                    if along > best:
+                        best = along
+                if np.float32(best) <= 0:
+                    inside[j] += 1
+            if inside[j] >= limit:
+                inside[j] = limit
+                break
+    return inside
+
+
 def compile_field_kernels() -> None:
     """Compile (or load from numba's cache) the kernels of this module before a set needs them
     (the first compilation after a change takes seconds), for the engine's float32 fields."""
@@ -177,9 +232,9 @@ def compile_field_kernels() -> None:
     grown = dilate_discs(
         field, np.ones(2), (np.ones(2, dtype=np.int64), np.ones(2, dtype=np.int64))
     )
-    WindowStack.make(np.zeros((2, 2)), np.ones((2, 2)), (0.0, 0.0), 1.0, (4, 4)).interval_fields(
-        field, grown, field, np.ones((2, 1, 1), dtype=np.bool_), np.float32(1.0)
-    )
+    stack = WindowStack.make(np.zeros((2, 2)), np.ones((2, 2)), (0.0, 0.0), 1.0, (4, 4))
+    stack.interval_fields(field, grown, field, np.ones((2, 1, 1), dtype=np.bool_), np.float32(1.0))
+    stack.nodes_inside(np.zeros(1), np.zeros((2, 1)), 16)
 
 
 def dilate_discs(

@@ -12,6 +12,7 @@ where it is cut (``reach.notch``), inside the partition's region.
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, overload
 
@@ -120,6 +121,46 @@ class SliceFields:
         return SliceFields(self.k0, self.i0, values)
 
 
+class DeferredSliceFields(SliceFields):
+    """Slice fields of which only some are computed: the others (None) are computed, all at once,
+    by ``complete()`` the first time one of them is asked for (or kept, :meth:`keeping`). A set
+    held by its outer polygons draws nothing from them (``FRTEngine.exact``): they are there for
+    what is drawn from the fields themselves (a reference contour). Two threads asking at once
+    may both compute them; either result is the same."""
+
+    def __init__(
+        self,
+        k0: np.ndarray,
+        i0: np.ndarray,
+        values: tuple[np.ndarray | None, ...],
+        complete: Callable[[], tuple[np.ndarray, ...]],
+    ) -> None:
+        super().__init__(k0, i0, values)
+        self._complete: Callable[[], tuple[np.ndarray, ...]] | None = complete
+
+    def _fill(self) -> None:
+        complete = self._complete
+        if complete is not None:
+            self.values = tuple(complete())
+            self._complete = None
+
+    @overload
+    def __getitem__(self, j: int) -> SliceField: ...
+
+    @overload
+    def __getitem__(self, j: slice) -> list[SliceField]: ...
+
+    def __getitem__(self, j: int | slice) -> SliceField | list[SliceField]:
+        if isinstance(j, slice) or self.values[j] is None:
+            self._fill()
+        return super().__getitem__(j)
+
+    def keeping(self, needed: np.ndarray) -> SliceFields:
+        if any(keep and v is None for v, keep in zip(self.values, needed, strict=True)):
+            self._fill()
+        return super().keeping(needed)
+
+
 #: A corner of an outer polygon turns by 2 pi / 16 = 22.5 degrees; the contour draws a chord across
 #: it between points on the grid lines within a cell diagonal of the corner, which cuts at most
 #: sqrt(2) sin(11.25 deg) = 0.28 node steps inside.
@@ -222,7 +263,9 @@ class FieldTubeSet(FRTSet):
         #: cannot resolve K there, so the outer polygon stands for it.
         self.coarse = np.zeros(len(instant), dtype=bool) if coarse is None else coarse
         #: Per interval j >= 1, whether {sweep_j <= 0} is its outer polygon's own zero set on the
-        #: grid (the dilated instants hold that polygon): K over the interval is the polygon.
+        #: grid (the dilated instants hold that polygon), or, for a set made without its fields,
+        #: whether the outer bound shows the polygon within reach of its instants
+        #: (``reach.held``): K over the interval is the polygon.
         self.outer_held = np.zeros(len(instant), dtype=bool) if outer_held is None else outer_held
         if len(bound_rows) > 1 and bound_rows[1] - bound_rows[0] != SWEEPS_PER_WINDOW:
             self.outer_held[:] = False  # the outer tube's windows are not the intervals
@@ -266,7 +309,8 @@ class FieldTubeSet(FRTSet):
         for j in range(1, n):
             whole = self.coarse[j] or self.coarse[j - 1] or self.outer_held[j]
             sweep[j] = not whole and j not in intervals
-        contoured = [j for j in range(n) if j not in tubes and not self._tube_is_outer(j)]
+        outer = self._outer_tubes()
+        contoured = [j for j in range(n) if j not in tubes and not outer[j]]
         if contoured:
             sweep[: max(contoured) + 1] = True  # a tube is the minimum of the sweeps up to it
         return instant, sweep
@@ -313,10 +357,16 @@ class FieldTubeSet(FRTSet):
         interval's contour (linear interpolation of a minimum lies below the minimum of the
         interpolations), each of which grown by the corner chords holds its polygon, so the cut
         to the outer tube leaves the outer tube."""
-        if j < 1 or self.notch is not None:
-            return False
-        unresolved = self.coarse[1 : j + 1] | self.coarse[:j]
-        return bool(np.all(self.outer_held[1 : j + 1] | unresolved))
+        return bool(self._outer_tubes()[j])
+
+    def _outer_tubes(self) -> np.ndarray:
+        """:meth:`_tube_is_outer` of every tube ([n_slices] bool): each interval up to it is its
+        outer polygon, a running AND over the intervals."""
+        outer = np.zeros(self.n_slices, dtype=bool)
+        if self.notch is None and self.n_slices > 1:
+            whole = self.outer_held[1:] | self.coarse[1:] | self.coarse[:-1]
+            outer[1:] = np.logical_and.accumulate(whole)
+        return outer
 
     def _sweeps_minimum(self, j: int) -> SliceField:
         """``running_minimum(self.sweep[: j + 1])``, from the last one taken before j when there

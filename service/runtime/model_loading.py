@@ -19,6 +19,7 @@ from models.runtime import ModelCard, ValueModel
 from models.value_fields import engine_for, network_decision
 from reach.engine import FRTEngine
 from reach.field_stack import compile_field_kernels
+from reach.held import compile_held_kernel
 from reach.packed_rings import compile_ring_kernels
 from reach.polygons import compile_polygon_kernel
 from service.runtime.exact_worker import ExactTask, start_pool, warm_up_task
@@ -56,6 +57,7 @@ def load_model(
         # Before readiness: a first call would stall the event loop (threads compute there).
         compile_polygon_kernel()
         compile_field_kernels()
+        compile_held_kernel()
         compile_ring_kernels()
     except Exception as exc:  # a missing or broken model must not stop the service
         log.error("model not loaded", extra={"model_path": str(path), "error": str(exc)})

@@ -1,19 +1,25 @@
 """``/v1/maps/{map_id}`` in-process: register the shipped Argoverse 2 map archive (data/av2/,
 © Argo AI, LLC, CC BY-NC-SA 4.0, https://creativecommons.org/licenses/by-nc-sa/4.0/), read it,
 replace it, forget it; bad input is a 4xx naming what is wrong and registers nothing; FRT_MAP
-loads one at start-up."""
+loads one at start-up; ``POST /v1/frt`` with ``map_id`` answers from the set cut by its drivable
+area and says so."""
 
 from __future__ import annotations
 
 import json
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 from fastapi.testclient import TestClient
+from shapely.geometry import shape
 
+from reach.road_map import RoadMap
 from service.api.app import create_app
 from service.runtime.settings import Settings
+from tests.conftest import READY_TIMEOUT_S
+from tests.fixtures.payloads import NARROW_BOUNDS
 
 ARCHIVE = (
     Path(__file__).resolve().parent.parent
@@ -25,7 +31,9 @@ RAW = ARCHIVE.read_bytes()
 
 
 def settings_for(model: Path, **extra: object) -> Settings:
-    return Settings(model_path=model, log_requests=False, max_maps=2, **extra)
+    """In-process settings: exact sets on one thread, the certified geometry alone."""
+    fixed = {"frt_executor": "thread", "frt_workers": 1, "network": "off", "max_maps": 2}
+    return Settings(model_path=model, log_requests=False, **{**fixed, **extra})
 
 
 @pytest.fixture(scope="module")
@@ -123,3 +131,72 @@ def test_frt_map_is_loaded_at_start_up(analytic_model_path: Path, tmp_path: Path
     broken.write_text('{"drivable_areas": {"1": {"area_boundary": [{"x": 0}]}}}')
     with pytest.raises(ValueError, match=r"drivable_areas\.1\.area_boundary"):
         create_app(settings_for(analytic_model_path, map=broken))
+
+
+def wait_ready(client: TestClient) -> None:
+    deadline = time.monotonic() + READY_TIMEOUT_S
+    while client.get("/readyz").status_code != 200:
+        assert time.monotonic() < deadline, client.get("/readyz").json()
+        time.sleep(0.02)
+
+
+#: A car of the recorded scenario on the road, heading north at 10 m/s, with wide steering.
+ON_ROAD = {"x": -424.74, "y": 1417.45, "heading": 1.495, "speed": 10.0}
+#: A parked car's spot off the drivable area.
+OFF_ROAD = {"x": -419.9, "y": 1377.8, "heading": 1.5, "speed": 1.0}
+WIDE = {**NARROW_BOUNDS, "u1_min_start": -0.5, "u1_min_end": -0.5, "u1_max_start": 0.5,
+        "u1_max_end": 0.5, "u2_min_start": -4.0, "u2_min_end": -4.0}  # fmt: skip
+
+
+def frt(client: TestClient, state: dict, **extra: object) -> dict:
+    body = {"state": state, "control_bounds": WIDE,
+            "contours": {"slices": [1.0, 2.5], "include": ["K", "C"]}, **extra}  # fmt: skip
+    r = client.post("/v1/frt", json=body)
+    assert r.status_code == 200, r.text
+    return r.json()
+
+
+def test_the_stateless_frt_is_cut_by_a_named_map(client: TestClient) -> None:
+    wait_ready(client)
+    assert put(client, "austin", RAW).status_code == 200
+    plain = frt(client, ON_ROAD)
+    k_plain = shape(plain["contours"]["tube"]["K"])
+    road = RoadMap.from_json(RAW)
+    off = k_plain.difference(road.region(1.0).grown.buffer(4.0))
+    point = off.representative_point()  # inside the uncut K, 4 m off the road
+    trajectory = [{"t": 2.0, "x": point.x, "y": point.y}]
+    plain = frt(client, ON_ROAD, trajectory=trajectory)
+    cut = frt(client, ON_ROAD, trajectory=trajectory, map_id="austin")
+    assert plain["assumptions"] == [] and cut["assumptions"] == ["drivable_area"]
+    assert plain["collision"]["collision"] and not cut["collision"]["collision"]
+    assert cut["collision"]["clearance"][0] > 2.0
+    for part in ("K", "C"):
+        k_cut, k_whole = (
+            shape(cut["contours"]["tube"][part]),
+            shape(plain["contours"]["tube"][part]),
+        )
+        assert k_cut.area < 0.6 * k_whole.area
+        assert k_cut.difference(k_whole.buffer(0.01)).area == 0.0
+    for whole, sliced in zip(plain["contours"]["slices"], cut["contours"]["slices"], strict=True):
+        assert shape(sliced["K"]).difference(shape(whole["K"]).buffer(0.01)).area == 0.0
+    assert shape(cut["contours"]["tube"]["K"]).difference(road.region(1.0).grown).area < 0.01
+
+
+def test_a_state_off_the_road_is_answered_uncut_and_counted(client: TestClient) -> None:
+    wait_ready(client)
+    assert put(client, "austin", RAW).status_code == 200
+    plain, off = frt(client, OFF_ROAD), frt(client, OFF_ROAD, map_id="austin")
+    assert off["assumptions"] == [] and off["contours"] == plain["contours"]
+    metrics = client.get("/metrics").text
+    assert (
+        'frt_assumption_violations_total{agent_class="car",assumption="drivable_area"}' in metrics
+    )
+    assert 'frt_road_cuts_total{outcome="off_road"}' in metrics
+
+
+def test_an_unknown_map_is_a_422_naming_map_id(client: TestClient) -> None:
+    wait_ready(client)
+    body = {"state": ON_ROAD, "control_bounds": WIDE, "map_id": "nowhere"}
+    r = client.post("/v1/frt", json=body)
+    assert field_of(r) == "map_id" and "unknown map 'nowhere'" in r.json()["detail"][0]["msg"]
+    assert field_of(client.post("/v1/frt", json={**body, "map_id": "a b"})) == "map_id"

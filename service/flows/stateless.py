@@ -5,7 +5,10 @@ The answer comes from the first exact set of its inputs: a set that may turn rou
 the notch cut in the background (``service.runtime.scheduler``) after it is answered, so a first
 request answers from the uncut set, which contains the cut one, and says so
 (``refinement_stage`` 0, ``refinement`` "pending"); the same request later answers from the
-refined set once it has landed."""
+refined set once it has landed.
+
+With ``map_id`` the answering set is cut to the map's drivable area while the state is on it
+(``service.flows.road``), and the answer lists the assumption in ``assumptions``."""
 
 from __future__ import annotations
 
@@ -18,6 +21,7 @@ from service.flows.agent_config import AgentConfig
 from service.flows.checks import answer, wait_budget_s
 from service.flows.contours import build
 from service.flows.next_state import check_ranges, class_limits, mode_bounds, observed_prediction
+from service.flows.road import map_entry, on_the_road
 from service.runtime.jobs import FRTJob
 from service.runtime.services import Services
 from service.wire.errors import FieldError
@@ -69,6 +73,7 @@ async def stateless_frt(services: Services, request: FRTRequest, arrival: float)
     if query is not None:
         check_slices("contours.slices", query.slices, horizon, settings)
     check_trajectory("trajectory", request.trajectory, settings)
+    road = map_entry(services, request.map_id)
     radius = (
         request.collision_radius
         if request.collision_radius is not None
@@ -86,6 +91,9 @@ async def stateless_frt(services: Services, request: FRTRequest, arrival: float)
 
     def compute() -> FRTResponse:
         frt = exact if exact is not None else services.conservative(job)
+        frt, assumptions = on_the_road(
+            services, road, job.key, frt, (state.x, state.y), DEFAULT_CLASS
+        )
         return FRTResponse(
             control_bounds=ControlBoundsOut.from_list(bounds.tolist()),
             beta=request.beta if request.control_bounds is None else None,
@@ -98,6 +106,7 @@ async def stateless_frt(services: Services, request: FRTRequest, arrival: float)
             collision=None
             if request.trajectory is None
             else answer(frt, request.trajectory, radius, t_origin),
+            assumptions=assumptions,
         )
 
     return await run_in_threadpool(compute)

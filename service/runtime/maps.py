@@ -4,20 +4,28 @@ those registered over the API (``PUT /v1/maps/{map_id}``), and the sets cut by t
 A map is an Argoverse 2 map archive (``reach.road_map``); its region R for the server's margin
 (``FRT_MAP_MARGIN_M``) is built when it is registered, so no request pays for it. Registering an
 id again replaces its map; sets cut by the map before are not reused (each registration has its
-own generation).
+own generation). Cut sets (``reach.road_cut.CutSet``) are kept per (set, map) in a small LRU: a
+request asking again for the same inputs reads the cut geometry drawn before.
 """
 
 from __future__ import annotations
 
 import threading
+from collections import OrderedDict
+from collections.abc import Hashable
 from dataclasses import dataclass
 from itertools import count
 from pathlib import Path
 from typing import Any
 
+from reach.road_cut import CutSet
 from reach.road_map import MapFormatError, RoadMap
+from reach.sets import FRTSet
 from service.runtime.settings import Settings
 from service.wire.errors import APIError, FieldError
+
+#: Cut sets kept (the latest used).
+CUT_CACHE_SIZE = 256
 
 
 @dataclass(frozen=True)
@@ -51,6 +59,7 @@ class MapRegistry:
         self._maps: dict[str, MapEntry] = {}
         self._lock = threading.Lock()
         self._generations = count(1)
+        self._cuts: OrderedDict[Hashable, tuple[FRTSet, CutSet]] = OrderedDict()
 
     def parse(self, raw: bytes) -> RoadMap:
         """The map of an archive's JSON bytes, its region built (blocking: call from a thread);
@@ -106,15 +115,34 @@ class MapRegistry:
         return entry
 
     def delete(self, map_id: str) -> MapEntry:
-        """Forget the map of ``map_id`` (404 if none)."""
+        """Forget the map of ``map_id`` (404 if none) and the sets cut by it."""
         with self._lock:
             entry = self._maps.pop(map_id, None)
             if entry is None:
                 raise APIError(404, f"unknown map {map_id!r}")
+            for key in [k for k in self._cuts if k[1] == entry.generation]:  # type: ignore[index]
+                del self._cuts[key]
         return entry
 
     def __len__(self) -> int:
         return len(self._maps)
+
+    def cut(self, entry: MapEntry, key: Hashable, frt: FRTSet) -> CutSet:
+        """``frt`` cut by the map's region (``reach.road_cut.CutSet``), kept under (``key``, the
+        map's generation) while ``frt`` is the set cut: a refined set replacing it is cut anew."""
+        cache_key = (key, entry.generation)
+        with self._lock:
+            found = self._cuts.get(cache_key)
+            if found is not None and found[0] is frt:
+                self._cuts.move_to_end(cache_key)
+                return found[1]
+        cut = CutSet(frt, entry.road, self.margin)
+        with self._lock:
+            self._cuts[cache_key] = (frt, cut)
+            self._cuts.move_to_end(cache_key)
+            while len(self._cuts) > CUT_CACHE_SIZE:
+                self._cuts.popitem(last=False)
+        return cut
 
 
 def registry_for(settings: Settings) -> MapRegistry:

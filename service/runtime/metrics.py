@@ -22,6 +22,7 @@ class Metrics:
         self._define_demand(self.registry)
         self._define_answers(self.registry)
         self._define_audit(self.registry)
+        self._define_maps(self.registry)
 
     def _define_latencies(self, r: CollectorRegistry) -> None:
         self.request_seconds = Histogram(
@@ -156,6 +157,22 @@ class Metrics:
         )
         self.agents = Gauge("frt_agents", "Agents in the store", registry=r)
         self.model_ready = Gauge("frt_model_ready", "1 once the model is loaded", registry=r)
+
+    def _define_maps(self, r: CollectorRegistry) -> None:
+        self.road_cuts = Counter(
+            "frt_road_cuts",
+            "Answers for a state that named a map (docs/maps.md), by outcome: cut (the set cut to "
+            "the drivable area) or off_road (the state is off it: answered uncut)",
+            ["outcome"],
+            registry=r,
+        )
+        self.assumption_violations = Counter(
+            "frt_assumption_violations",
+            "States observed breaking a map assumption (drivable_area: off the drivable area "
+            "grown by FRT_MAP_MARGIN_M), by assumption and agent class",
+            ["assumption", "agent_class"],
+            registry=r,
+        )
 
     def render(self) -> bytes:
         return generate_latest(self.registry)

@@ -695,6 +695,11 @@ class FRTRequest(Request):
     deadline_ms: float | None = Field(
         None, gt=0.0, le=60_000.0, description="answer conservatively if the exact set is late"
     )
+    map_id: AgentId | None = Field(
+        None,
+        description="a registered map (PUT /v1/maps/{map_id}): the set is cut to its drivable "
+        "area while the state is on it (docs/maps.md)",
+    )
 
 
 class FRTResponse(Response):
@@ -718,6 +723,11 @@ class FRTResponse(Response):
     )
     contours: Contours | None
     collision: CollisionAnswer | None
+    assumptions: list[str] = Field(
+        default_factory=list,
+        description="the map assumptions the answering set was cut by ('drivable_area'); empty "
+        "without a map, or for a state off the map's drivable area",
+    )
 
 
 # --------------------------------------------------------------------------------- model, health

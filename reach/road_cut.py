@@ -1,0 +1,206 @@
+"""A set cut by the road: the assumption "the human stays on the drivable area".
+
+The assumption: the human's position stays in R = (D ⊕ margin) ∪ (the plane outside the map's
+extent) over the whole horizon (``reach.road_map``). The certified statement becomes: every set
+served holds every position that a trajectory of the dynamics under the bounds *which keeps to R*
+reaches. Cut from an inner set that holds every trajectory's positions:
+
+* tube j: a trajectory keeping to R stays, over [0, s_j], inside tube_j ∩ R, and its path there is
+  connected and starts in the initial set (slice 0); so its positions lie in the connected
+  components of tube_j ∩ R that meet slice_0 ∩ R, and the cut tube keeps only those (a component
+  of R that the set reaches only across the off-road is dropped: the oncoming carriageway beyond a
+  kerb, a parallel street behind a building). Components touching along an edge or at a point are
+  one component; a part where they only touch is kept as a thin polygon (1 µm);
+* slice j (the set at s_j) and interval j (over [s_(j-1), s_j]): the inner one ∩ the cut tube j,
+  which holds every such position at or before s_j.
+
+Each cut set is inside its inner set. Where the human's observed position is not in R, the
+assumption is already broken: the caller serves the inner set (``RoadMap.on_road``).
+
+R is read once per set, in the human frame, around the bounding box of the inner set's whole
+horizon (its outer bound's boxes where it has them); a geometry reaching past that box rebuilds it
+around both, so nothing is cut for want of map.
+"""
+
+from __future__ import annotations
+
+import threading
+from typing import Any
+
+import numpy as np
+import shapely
+from shapely.geometry.base import BaseGeometry, BaseMultipartGeometry
+
+from reach.road_map import RoadMap, cut_to
+from reach.sets import BoxTubeSet, FRTSet
+
+#: The label of this assumption in answers.
+DRIVABLE_AREA = "drivable_area"
+#: Lower-dimensional parts of a cut (where a set and R only touch) are kept grown by this (m).
+THIN_PART_M = 1e-6
+#: R is read this far (m) around the box it is read for, so small overshoots do not rebuild it.
+REGION_PAD_M = 5.0
+
+
+def extent(frt: FRTSet) -> tuple[float, float, float, float]:
+    """A box (x0, y0, x1, y1) in the human frame holding the set's whole-horizon tube: its outer
+    bound's boxes where it has them (a box set, an exact set's ``outer``, a union's members),
+    else the tube's bounds."""
+    boxes = _boxes(frt)
+    if boxes is not None:
+        return (
+            float(boxes[:, 0].min()),
+            float(boxes[:, 2].min()),
+            float(boxes[:, 1].max()),
+            float(boxes[:, 3].max()),
+        )
+    return tuple(float(v) for v in frt.tube(frt.n_slices - 1).bounds)  # type: ignore[return-value]
+
+
+def _boxes(frt: Any) -> np.ndarray | None:
+    """[M, 4] boxes (x_lo, x_hi, y_lo, y_hi) whose union holds the set, if it has them."""
+    if isinstance(frt, BoxTubeSet):
+        return frt.boxes
+    outer = getattr(frt, "outer", None)
+    if isinstance(outer, BoxTubeSet):
+        return outer.boxes
+    members = getattr(frt, "members", None)
+    if members:
+        found = [_boxes(m) for m in members]
+        if all(b is not None for b in found):
+            return np.vstack(found)  # type: ignore[arg-type]
+    return None
+
+
+def _covers(outer: tuple[float, ...], inner: tuple[float, ...]) -> bool:
+    return (
+        outer[0] <= inner[0]
+        and outer[1] <= inner[1]
+        and outer[2] >= inner[2]
+        and outer[3] >= inner[3]
+    )
+
+
+class CutSet(FRTSet):
+    """``inner`` cut by the road (see the module): tubes, slices and intervals in the human frame,
+    each drawn on first use and kept. Clearances measure to the cut tubes."""
+
+    clearance_from_tubes = True
+
+    def __init__(self, inner: FRTSet, road: RoadMap, margin: float) -> None:
+        super().__init__(
+            inner.pose, inner.slice_dt, inner.horizon_s, inner.n_slices, inner.conservative
+        )
+        self.inner = inner
+        self.road = road
+        self.margin = margin
+        self.assumptions = (DRIVABLE_AREA,)
+        self.notch = inner.notch
+        self.notch_possible = inner.notch_possible
+        self.evaluations = inner.evaluations
+        self._tubes: dict[int, BaseGeometry] = {}
+        self._slices: dict[int, BaseGeometry] = {}
+        self._intervals: dict[int, BaseGeometry] = {}
+        self._lock = threading.Lock()
+        x0, y0, x1, y1 = extent(inner)
+        pad = REGION_PAD_M
+        self._box = (x0 - pad, y0 - pad, x1 + pad, y1 + pad)
+        self._region = road.region_in_frame(inner.pose, self._box, margin)
+        self._start: BaseGeometry | None = None
+
+    def region_for(self, geometry: BaseGeometry) -> BaseGeometry:
+        """R (human frame) around ``geometry``: the set's region, rebuilt around both if the
+        geometry reaches past its box."""
+        bounds = geometry.bounds
+        with self._lock:
+            if not geometry.is_empty and not _covers(self._box, bounds):
+                pad = REGION_PAD_M
+                self._box = (
+                    min(self._box[0], bounds[0] - pad),
+                    min(self._box[1], bounds[1] - pad),
+                    max(self._box[2], bounds[2] + pad),
+                    max(self._box[3], bounds[3] + pad),
+                )
+                self._region = self.road.region_in_frame(self.pose, self._box, self.margin)
+            return self._region
+
+    def cut(self, geometry: BaseGeometry) -> BaseGeometry:
+        """``geometry`` ∩ R (no components dropped)."""
+        return cut_to(geometry, self.region_for(geometry))
+
+    def start(self) -> BaseGeometry:
+        """slice_0 ∩ R: where a trajectory keeping to R may start."""
+        if self._start is None:
+            self._start = self.cut(self.inner.slice(0))
+        return self._start
+
+    def tube(self, j: int) -> BaseGeometry:
+        found = self._tubes.get(j)
+        if found is None:
+            found = connected_to(self.cut(self.inner.tube(j)), self.start())
+            self._tubes[j] = found
+        return found
+
+    def slice(self, j: int) -> BaseGeometry:
+        found = self._slices.get(j)
+        if found is None:
+            found = self.start() if j == 0 else _within(self.inner.slice(j), self.tube(j))
+            self._slices[j] = found
+        return found
+
+    def interval(self, j: int) -> BaseGeometry:
+        j = max(j, 1)
+        found = self._intervals.get(j)
+        if found is None:
+            found = _within(self.inner.interval(j), self.tube(j))
+            self._intervals[j] = found
+        return found
+
+    def missing_tubes(self, indices: list[int]) -> list[int]:
+        return sorted(set(indices).difference(self._tubes))
+
+    def nearest_built_tube(self, j: int) -> int:
+        later = [i for i in list(self._tubes) if i >= j]
+        return min(later) if later else self.n_slices - 1
+
+
+def _within(geometry: BaseGeometry, container: BaseGeometry) -> BaseGeometry:
+    """geometry ∩ container, geometry itself where the container holds it."""
+    if geometry.is_empty or container.is_empty:
+        return shapely.Polygon() if container.is_empty else geometry
+    return cut_to(geometry, container)
+
+
+def connected_to(geometry: BaseGeometry, start: BaseGeometry) -> BaseGeometry:
+    """The connected components of ``geometry`` that meet ``start`` (parts that touch count as
+    connected), as polygons; parts of lower dimension kept grown by ``THIN_PART_M``."""
+    if geometry.is_empty or start.is_empty:
+        return shapely.Polygon()
+    parts = _flat_parts(geometry)
+    kept = shapely.intersects(parts, start)
+    frontier = kept.copy()
+    while frontier.any() and not kept.all():  # add the parts touching those added last
+        added = shapely.union_all(parts[frontier])
+        frontier = ~kept & shapely.intersects(parts, added)
+        kept |= frontier
+    if kept.all() and isinstance(geometry, shapely.Polygon | shapely.MultiPolygon):
+        return geometry
+    polygons = [p for p in parts[kept] if isinstance(p, shapely.Polygon)]
+    thin = [
+        p.buffer(THIN_PART_M, quad_segs=1)
+        for p in parts[kept]
+        if not isinstance(p, shapely.Polygon)
+    ]
+    if thin:
+        return shapely.union_all(polygons + thin)
+    if not polygons:
+        return shapely.Polygon()
+    return polygons[0] if len(polygons) == 1 else shapely.MultiPolygon(polygons)
+
+
+def _flat_parts(geometry: BaseGeometry) -> np.ndarray:
+    """The single parts of a geometry (collections within collections opened too)."""
+    parts = shapely.get_parts(geometry)
+    while any(isinstance(p, BaseMultipartGeometry) for p in parts):
+        parts = shapely.get_parts(parts)
+    return parts

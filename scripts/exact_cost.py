@@ -1,9 +1,10 @@
-"""What one exact set of `make load`'s mix costs in-process: the set, its tubes, its pickling.
+"""What one exact set of `make load`'s mix costs in-process: the set, its tubes, its transfer.
 
 The ten humans of ``scripts/load.py`` (their first predictions, beta 0.5), each set computed as a
 worker computes it (``service.runtime.exact_worker.ExactTask``): alone, and with the tubes the
-mix's time-indexed checks need (``LOAD_MIX_TUBES``); then pickled and unpickled as the pipe pool
-does. Medians per set over ``--repeats`` passes.
+mix's time-indexed checks need (``LOAD_MIX_TUBES``); then pickled and unpickled, and written and
+read as bytes as the pipe pool sends them (``reach.set_bytes``; a checkout without it reports
+pickling only). Medians per set over ``--repeats`` passes.
 
 ``--src DIR`` imports the project from another checkout (e.g. an older commit exported with ``git
 archive``) for side-by-side figures on one machine: run it once per checkout, alternately.
@@ -32,7 +33,7 @@ LOAD_MIX_TUBES = 21
 
 def mix_set_costs(model: Path, repeats: int = 5) -> dict[str, float]:
     """Median ms per set: the exact set alone, with the tubes checks need, pickling and
-    unpickling it; and its pickled size in kB."""
+    unpickling it, writing and reading its bytes; and its pickled and written sizes in kB."""
     from reach.frames import Pose
     from scripts.fallback_cost import served_engine
     from scripts.load import make_humans
@@ -72,7 +73,7 @@ def mix_set_costs(model: Path, repeats: int = 5) -> dict[str, float]:
     blobs = [pickle.dumps(frt, 4) for frt in sets]
     alone = per_set(lambda: [task() for task in plain], len(plain))
     full = per_set(lambda: [task() for task in with_tubes], len(with_tubes))
-    return {
+    costs = {
         "exact set alone": alone,
         "with the tubes checks need": full,
         "of which the tubes": full - alone,
@@ -80,6 +81,19 @@ def mix_set_costs(model: Path, repeats: int = 5) -> dict[str, float]:
         "unpickling": per_set(lambda: [pickle.loads(b) for b in blobs], len(blobs)),
         "kB": sum(map(len, blobs)) / len(blobs) / 1000.0,
     }
+    try:
+        from reach.set_bytes import set_from_bytes, set_to_bytes
+    except ImportError:  # a checkout from before the binary layout
+        return costs
+    written = [set_to_bytes(frt) for frt in sets]
+    costs.update(
+        {
+            "writing bytes": per_set(lambda: [set_to_bytes(frt) for frt in sets], len(sets)),
+            "reading bytes": per_set(lambda: [set_from_bytes(b) for b in written], len(written)),
+            "bytes kB": sum(map(len, written)) / len(written) / 1000.0,
+        }
+    )
+    return costs
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -6,10 +6,10 @@ socket, a pipe or a lock is not counted) while ``scripts/load.py`` runs the mix,
 sample into one part of the work by the frames on its stack:
 
 * workers: the exact set's fields and geometry, the whole-horizon tube, the tubes drawn for
-  time-indexed checks, the notch cut's refinements, pickling the result back;
+  time-indexed checks, the notch cut's refinements, writing the set back as bytes;
 * server, event loop: answering collision checks, the observation flow, serialising responses,
   logging, the rest of the HTTP stack and the loop itself;
-* server, other threads: the pipe pool's reader (unpickling results: it takes the GIL from the
+* server, other threads: the pipe pool's reader (reading the sets back: it takes the GIL from the
   event loop while it does), the request thread pool, the rest.
 
 Seconds are sampled wall time of active threads (CPU, or runnable and waiting for a core: on a
@@ -52,7 +52,8 @@ WORKER_PARTS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("exact set: instant and interval fields", ("FRTEngine._instant_fields",
                                                 "FRTEngine._interval_fields")),
     ("exact set: rest", ("FRTEngine.exact", "exact_union")),
-    ("pickling the set back", ("_ConnectionBase.send_bytes", "dumps", "BaseGeometry.__reduce__")),
+    ("sending the set back", ("_ConnectionBase.send_bytes", "set_to_bytes", "encode_result",
+                              "dumps", "BaseGeometry.__reduce__")),
     ("reading the task", ("_ConnectionBase.recv_bytes", "loads")),
 )  # fmt: skip
 SERVER_LOOP_PARTS: tuple[tuple[str, tuple[str, ...]], ...] = (
@@ -124,7 +125,7 @@ def breakdown(raw: Path, rate: float) -> dict[str, Any]:
         processes["server"].add(owners[0].split(":")[0] if owners else "?")
         names = [f.split(" (")[0] for f in frames]
         if "PipePool._read" in names:
-            parts["server other threads"]["pipe pool reader (unpickling sets)"] += seconds
+            parts["server other threads"]["pipe pool reader (reading sets)"] += seconds
         elif "Runner.run" in names or "Server.run" in names:
             part = classify(frames, SERVER_LOOP_PARTS) or "event loop: other"
             parts["server event loop"][part] += seconds

@@ -36,9 +36,9 @@ def test_samples_are_sorted_into_parts_by_their_stacks(tmp_path: Path) -> None:
     assert workers["tubes for time-indexed checks"] == pytest.approx(3.0)
     assert workers["whole-horizon tube"] == pytest.approx(0.2)
     assert workers["exact set: lattice and polygon fields"] == pytest.approx(0.4)
-    assert workers["pickling the set back"] == pytest.approx(0.1)
+    assert workers["sending the set back"] == pytest.approx(0.1)
     loop = result["parts"]["server event loop"]
     assert loop == pytest.approx({"observations": 0.5, "collision checks: answering": 0.3})
     other = result["parts"]["server other threads"]
-    assert other == pytest.approx({"pipe pool reader (unpickling sets)": 0.15})
+    assert other == pytest.approx({"pipe pool reader (reading sets)": 0.15})
     assert result["processes"] == {"workers": 1, "server": 1}

@@ -1,13 +1,14 @@
-"""Exact FRTs in worker processes: one engine per process, results sent back by pickle.
+"""Exact FRTs in worker processes: one engine per process, sets sent back as bytes.
 
 The event loop shares the GIL with any thread in its process, so an exact set (milliseconds of numpy,
 onnxruntime and Python) computed in a thread slows every request answered meanwhile. Here each
 worker process loads the model once (:func:`init_worker`, from the same model path as the server)
 and runs :class:`ExactTask`\\ s; the result, a :class:`~reach.engine.FieldTubeSet` with its
-eagerly built whole tube and the small arrays its slices are drawn from later, comes back by pickle
-between our own processes (trusted IPC, :class:`~service.runtime.pipe_pool.PipePool`; what a set sends
-is its ``__getstate__``). Conservative sets (boxes only, cheaper than a task's round trip to a
-worker) are built by the server itself.
+eagerly built whole tube and the small arrays its slices are drawn from later, comes back in the
+binary layout of ``reach.set_bytes`` (:func:`encode_result`, :func:`decode_result`: what a set
+sends is its ``__getstate__``; the server unpickles no set), over
+:class:`~service.runtime.pipe_pool.PipePool`. Conservative sets (boxes only, cheaper than a task's
+round trip to a worker) are built by the server itself.
 
 Exact-set workers run below the server (SCHED_IDLE by default, :func:`lower_priority`), so that on
 a busy machine the event loop answers first and exact sets use what is left. A worker exits when its server does (even
@@ -20,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import struct
 import threading
 import time
 from dataclasses import dataclass, field, replace
@@ -32,8 +34,10 @@ from reach.contract import N_INPUTS
 from reach.engine import FRTEngine
 from reach.field_stack import compile_field_kernels
 from reach.frames import Pose
+from reach.held import compile_held_kernel
 from reach.notch import NOTCH_STAGES
 from reach.polygons import compile_polygon_kernel
+from reach.set_bytes import SetBytesError, set_from_bytes, set_to_bytes
 from reach.sets import FRTSet
 from reach.speed_programme import compile_speed_programme
 from reach.union import exact_union
@@ -128,6 +132,7 @@ def init_worker(
     compile_speed_programme()
     compile_polygon_kernel()
     compile_field_kernels()
+    compile_held_kernel()
     field = _engine.value_field
     if isinstance(field, ProjectionField):  # the runtime's arena sized for the largest sets
         field.model.evaluate_projection(np.zeros((4 * _engine.max_nodes, N_INPUTS), np.float32))
@@ -167,6 +172,38 @@ def _exit_with_parent(parent_pid: int) -> None:
             os._exit(0)
 
 
+#: What :func:`encode_result` wrote: a set alone, or a set and the seconds it took.
+_SET, _TIMED_SET = b"S", b"T"
+_SECONDS = struct.Struct("<d")
+
+
+def encode_result(value: Any) -> bytes | None:
+    """A worker's result as bytes: an exact set (``reach.set_bytes``), or the scheduler's
+    ``(set, seconds)`` (``service.runtime.scheduler.timed``); None for anything else (pickled
+    by the pool)."""
+    if isinstance(value, FRTSet):
+        return set_to_bytes(value, prefix=_SET)
+    if (
+        isinstance(value, tuple)
+        and len(value) == 2
+        and isinstance(value[0], FRTSet)
+        and isinstance(value[1], float)
+    ):
+        return set_to_bytes(value[0], prefix=_TIMED_SET + _SECONDS.pack(value[1]))
+    return None
+
+
+def decode_result(data: memoryview) -> Any:
+    """What :func:`encode_result` wrote (``reach.set_bytes.SetBytesError`` if it is not that)."""
+    kind = bytes(data[:1])
+    if kind == _SET:
+        return set_from_bytes(data[1:])
+    if kind == _TIMED_SET and len(data) >= 1 + _SECONDS.size:
+        (seconds,) = _SECONDS.unpack_from(data, 1)
+        return set_from_bytes(data[1 + _SECONDS.size :]), seconds
+    raise SetBytesError(f"a worker result of unknown kind {kind!r}")
+
+
 def start_pool(
     model_path: Path,
     workers: int,
@@ -176,10 +213,13 @@ def start_pool(
     network: bool = True,
 ) -> PipePool:
     """A pool of ``workers`` processes, each with the engine loaded and warmed and run below the
-    server (:func:`lower_priority`); raises if they cannot all be started within ``timeout_s``."""
+    server (:func:`lower_priority`), that send exact sets back as bytes (:func:`encode_result`);
+    raises if they cannot all be started within ``timeout_s``."""
     return PipePool(
         workers,
         initializer=init_worker,
         initargs=(str(model_path), nice, os.getpid(), policy, network),
         timeout_s=timeout_s,
+        encode=encode_result,
+        decode=decode_result,
     )

@@ -8,6 +8,11 @@ worker's pipe, and a single reader thread waits on all pipes at once and complet
 Workers are spawned, run an initializer once, report ready, then serve tasks one at a time until they
 read ``None`` or their pipe closes. A worker that dies breaks the pool (:class:`BrokenExecutor` for
 its task, every queued one and every later submit), as with ``ProcessPoolExecutor``.
+
+Tasks and errors travel pickled. A result travels as the pool's ``encode`` writes it, when it
+writes it (bytes, read back by ``decode`` in the parent without unpickling anything: the exact
+sets, ``service.runtime.exact_worker``), and pickled otherwise; the first byte of every message
+from a worker says which.
 """
 
 from __future__ import annotations
@@ -29,12 +34,26 @@ from typing import Any
 #: and a managed buffer, two objects the garbage collector tracks (36 per exact set, ~9 000 with
 #: the FRT cache full: they lengthened every full collection); with 4 the arrays own their copy.
 _PROTOCOL = 4
+#: The first byte of a message from a worker: a pickled ``(ok, value)``, or a result as the
+#: pool's ``encode`` wrote it.
+_PICKLED, _ENCODED = b"P", b"E"
+
+#: Writes a result as bytes, or None to leave it pickled (runs in the workers: module level).
+Encode = Callable[[Any], bytes | None]
+#: Reads back what ``Encode`` wrote (in the parent).
+Decode = Callable[[memoryview], Any]
 
 
-def _serve(conn: Connection, initializer: Callable[..., None], initargs: tuple[Any, ...]) -> None:
-    """A worker process: initialise, say ready, then run pickled ``(fn, args)`` until told to stop."""
+def _serve(
+    conn: Connection,
+    initializer: Callable[..., None],
+    initargs: tuple[Any, ...],
+    encode: Encode | None = None,
+) -> None:
+    """A worker process: initialise, say ready, then run pickled ``(fn, args)`` until told to stop;
+    a result ``encode`` writes goes back as those bytes, any other outcome pickled."""
     initializer(*initargs)
-    conn.send_bytes(pickle.dumps(("ready", os.getpid()), _PROTOCOL))
+    conn.send_bytes(_PICKLED + pickle.dumps(("ready", os.getpid()), _PROTOCOL))
     while True:
         try:
             message = pickle.loads(conn.recv_bytes())
@@ -47,13 +66,26 @@ def _serve(conn: Connection, initializer: Callable[..., None], initargs: tuple[A
             outcome: tuple[bool, Any] = (True, fn(*args))
         except BaseException as exc:  # sent back to the caller's future
             outcome = (False, exc)
+        conn.send_bytes(_outcome_bytes(outcome, encode))
+
+
+def _outcome_bytes(outcome: tuple[bool, Any], encode: Encode | None) -> bytes:
+    """A worker's message for ``outcome``: the result as ``encode`` writes it, else pickled."""
+    ok, value = outcome
+    if ok and encode is not None:
         try:
-            payload = pickle.dumps(outcome, _PROTOCOL)
-        except Exception as exc:  # an unpicklable result or exception
-            payload = pickle.dumps(
-                (False, RuntimeError(f"unpicklable outcome: {exc!r}")), _PROTOCOL
-            )
-        conn.send_bytes(payload)
+            encoded = encode(value)
+        except Exception as exc:  # a result the encoder refuses: sent back as the error
+            outcome = (False, RuntimeError(f"unencodable result: {exc!r}"))
+        else:
+            if encoded is not None:
+                return _ENCODED + encoded
+    try:
+        return _PICKLED + pickle.dumps(outcome, _PROTOCOL)
+    except Exception as exc:  # an unpicklable result or exception
+        return _PICKLED + pickle.dumps(
+            (False, RuntimeError(f"unpicklable outcome: {exc!r}")), _PROTOCOL
+        )
 
 
 @dataclass(eq=False)
@@ -65,7 +97,8 @@ class _Worker:
 
 class PipePool(Executor):
     """``workers`` spawned processes, each initialised by ``initializer(*initargs)``; raises if they
-    are not all ready within ``timeout_s``."""
+    are not all ready within ``timeout_s``. Results that ``encode`` writes come back through
+    ``decode`` (a result that does not decode fails its future with the decoder's error)."""
 
     def __init__(
         self,
@@ -73,8 +106,13 @@ class PipePool(Executor):
         initializer: Callable[..., None],
         initargs: tuple[Any, ...] = (),
         timeout_s: float = 120.0,
+        encode: Encode | None = None,
+        decode: Decode | None = None,
     ) -> None:
+        if (encode is None) != (decode is None):
+            raise ValueError("encode and decode go together")
         context = multiprocessing.get_context("spawn")
+        self._decode = decode
         self._lock = threading.Lock()
         self._queue: deque[tuple[Future[Any], bytes]] = deque()
         self._broken: str | None = None
@@ -86,7 +124,7 @@ class PipePool(Executor):
             for _ in range(workers):
                 parent, child = context.Pipe()
                 process = context.Process(
-                    target=_serve, args=(child, initializer, initargs), daemon=True
+                    target=_serve, args=(child, initializer, initargs, encode), daemon=True
                 )
                 process.start()
                 child.close()
@@ -95,7 +133,7 @@ class PipePool(Executor):
             for worker in self._workers:
                 if not worker.conn.poll(max(deadline - time.monotonic(), 0.0)):
                     raise TimeoutError(f"a worker process was not ready within {timeout_s:g} s")
-                pickle.loads(worker.conn.recv_bytes())  # ("ready", pid)
+                self._outcome(worker.conn.recv_bytes())  # ("ready", pid)
         except BaseException:
             self._stop_processes()
             raise
@@ -160,12 +198,14 @@ class PipePool(Executor):
                     return
                 worker = by_conn[conn]  # type: ignore[index]
                 try:
-                    ok, value = pickle.loads(worker.conn.recv_bytes())
+                    data = worker.conn.recv_bytes()
                 except (EOFError, OSError):
                     del by_conn[worker.conn]
                     self._worker_gone(worker)
                     continue
-                except Exception as exc:  # a result that does not unpickle here
+                try:
+                    ok, value = self._outcome(data)
+                except Exception as exc:  # a result that does not unpickle or decode here
                     ok, value = False, exc
                 with self._lock:
                     future, worker.future = worker.future, None
@@ -176,6 +216,15 @@ class PipePool(Executor):
                         future.set_result(value)
                     else:
                         future.set_exception(value)
+
+    def _outcome(self, data: bytes) -> tuple[bool, Any]:
+        """``(ok, value)`` of a worker's message: decoded, or unpickled (our own processes)."""
+        body = memoryview(data)[1:]
+        if data[:1] == _ENCODED and self._decode is not None:
+            return True, self._decode(body)
+        if data[:1] == _PICKLED:
+            return pickle.loads(body)  # type: ignore[no-any-return]
+        raise RuntimeError(f"a worker message of unknown kind {bytes(data[:1])!r}")
 
     def _worker_gone(self, worker: _Worker) -> None:
         with self._lock:

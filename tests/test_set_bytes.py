@@ -194,6 +194,17 @@ def _not_a_set() -> dict[str, int]:
     return {"a": 1}
 
 
+class _OtherSet(BoxTubeSet):
+    """A set type the layout does not hold."""
+
+
+def _other_set() -> BoxTubeSet:
+    frt = _box_set()
+    other = _OtherSet.__new__(_OtherSet)
+    other.__dict__.update(vars(frt))
+    return other
+
+
 def _garbled(value: Any) -> bytes:
     return b"S" + b"not a set"
 
@@ -214,6 +225,7 @@ def test_the_pool_sends_sets_as_bytes_and_the_rest_pickled() -> None:
         assert isinstance(pool.submit(_box_set).result(timeout=60), BoxTubeSet)
         assert len(decoded) == 2
         assert pool.submit(_not_a_set).result(timeout=60) == {"a": 1}  # pickled
+        assert isinstance(pool.submit(_other_set).result(timeout=60), _OtherSet)  # pickled
         assert len(decoded) == 2
     finally:
         pool.shutdown()

@@ -179,18 +179,24 @@ _SECONDS = struct.Struct("<d")
 
 def encode_result(value: Any) -> bytes | None:
     """A worker's result as bytes: an exact set (``reach.set_bytes``), or the scheduler's
-    ``(set, seconds)`` (``service.runtime.scheduler.timed``); None for anything else (pickled
-    by the pool)."""
-    if isinstance(value, FRTSet):
-        return set_to_bytes(value, prefix=_SET)
+    ``(set, seconds)`` (``service.runtime.scheduler.timed``); None for anything else, and for a
+    set the layout does not hold (a type or attribute it lacks: logged), which the pool then
+    pickles."""
+    frt, prefix = value, _SET
     if (
         isinstance(value, tuple)
         and len(value) == 2
         and isinstance(value[0], FRTSet)
         and isinstance(value[1], float)
     ):
-        return set_to_bytes(value[0], prefix=_TIMED_SET + _SECONDS.pack(value[1]))
-    return None
+        frt, prefix = value[0], _TIMED_SET + _SECONDS.pack(value[1])
+    if not isinstance(frt, FRTSet):
+        return None
+    try:
+        return set_to_bytes(frt, prefix=prefix)
+    except TypeError as exc:
+        log.warning("exact set sent pickled: no binary layout", extra={"error": str(exc)})
+        return None
 
 
 def decode_result(data: memoryview) -> Any:

@@ -684,11 +684,13 @@ def bench_serialisation(n: int) -> dict[str, dict]:
 
 
 def bench_exact_in_process(model: Path, n: int) -> dict[str, dict]:
-    """FRTEngine.exact alone (no HTTP, no queue): what an observation costs the worker."""
+    """FRTEngine.exact alone (no HTTP, no queue): what an observation costs the worker; and the
+    moving car's set (with the load mix's tubes) written and read as bytes, its trip back."""
     from models.runtime import ValueModel
     from models.value_fields import engine_for, network_decision
     from reach.engine import FRTEngine
     from reach.frames import Pose
+    from reach.set_bytes import set_from_bytes, set_to_bytes
 
     value_model = ValueModel.load(model, threads=1)
     # As the service builds it: with the network only where the card says it cuts (FRT_NETWORK).
@@ -716,6 +718,9 @@ def bench_exact_in_process(model: Path, n: int) -> dict[str, dict]:
         variants = {name: run(engine)}
         if "moving" in name:  # as a worker sends it for make load's 2 s time-indexed checks
             variants[f"{name}_with_load_mix_tubes"] = run(engine, tubes=LOAD_MIX_TUBES)
+            # ... and its trip back to the server: written and read as the pipe pool sends it.
+            sent = run(engine, tubes=LOAD_MIX_TUBES)()
+            variants[f"{name}_sent_back_as_bytes"] = lambda s=sent: set_from_bytes(set_to_bytes(s))
         if not network:
             variants[f"{name}_with_network"] = run(with_network)
         if "moving" in name:

@@ -391,9 +391,11 @@ class _Reader:
             code, maxsize = self.take(2)
             if not 0 <= code < len(_GEOMETRY_MEMOS) or maxsize < -1 or maxsize == 0:
                 raise SetBytesError(f"memo {code} of size {maxsize}")
-            memo = state[_GEOMETRY_MEMOS[code]] = Memo(maxsize=None if maxsize < 0 else maxsize)
-            for key, geometry in self.geometries_by_key().items():
-                memo.put(key, geometry)
+            values = self.geometries_by_key()
+            if 0 < maxsize < len(values):  # as putting them in turn would leave it
+                values = dict(list(values.items())[-maxsize:])
+            memo = state[_GEOMETRY_MEMOS[code]] = Memo.__new__(Memo)
+            memo.__setstate__({"maxsize": None if maxsize < 0 else maxsize, "_values": values})
         frt = FieldTubeSet.__new__(FieldTubeSet)
         frt.__setstate__(state)
         return frt
@@ -409,7 +411,7 @@ class _Reader:
             size = math.prod(shape)
             parts[name] = flat[at : at + size].reshape(shape)
             at += size
-        return OuterBound(**parts)
+        return _built(OuterBound, parts)  # type: ignore[no-any-return]
 
     def notch(self) -> NotchCut:
         arrays = {name: self.array() for name in _NOTCH_ARRAYS}

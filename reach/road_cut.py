@@ -31,7 +31,7 @@ import numpy as np
 import shapely
 from shapely.geometry.base import BaseGeometry, BaseMultipartGeometry
 
-from reach.road_map import RoadMap, cut_to
+from reach.road_map import RoadMap, covers_box, cut_to
 from reach.sets import BoxTubeSet, FRTSet
 
 #: The label of this assumption in answers.
@@ -72,15 +72,6 @@ def _boxes(frt: Any) -> np.ndarray | None:
     return None
 
 
-def _covers(outer: tuple[float, ...], inner: tuple[float, ...]) -> bool:
-    return (
-        outer[0] <= inner[0]
-        and outer[1] <= inner[1]
-        and outer[2] >= inner[2]
-        and outer[3] >= inner[3]
-    )
-
-
 class CutSet(FRTSet):
     """``inner`` cut by the road (see the module): tubes, slices and intervals in the human frame,
     each drawn on first use and kept. Clearances measure to the cut tubes."""
@@ -113,7 +104,7 @@ class CutSet(FRTSet):
         geometry reaches past its box."""
         bounds = geometry.bounds
         with self._lock:
-            if not geometry.is_empty and not _covers(self._box, bounds):
+            if not geometry.is_empty and not covers_box(self._box, bounds):
                 pad = REGION_PAD_M
                 self._box = (
                     min(self._box[0], bounds[0] - pad),

@@ -21,9 +21,9 @@ extent (the bounding box of all its elements): the region a set may be cut to is
 
 so a set is never cut where the map says nothing. R within the extent is indexed once per margin
 (:class:`DrivableRegion`): split into tiles, each with at most ``TILE_VERTICES`` vertices (a
-quadtree: a tile with more is split in four, down to ``MIN_TILE_M``), in an STRtree. Cutting a
-set K reads only the tiles its bounding box meets: K ∩ R = K ∩ (their union ∪ the part of the box
-outside the extent).
+quadtree: a tile with more is split in four, down to ``MIN_TILE_M``), with four strips around the
+extent for the plane outside it, in an STRtree. Cutting a set K reads only the tiles its bounding
+box meets: K ∩ R = K ∩ their union.
 """
 
 from __future__ import annotations
@@ -52,6 +52,10 @@ MAX_POINTS = 2_000_000
 TILE_VERTICES = 256
 #: ... and is wider than this (metres).
 MIN_TILE_M = 8.0
+#: The plane outside the extent is indexed this far (metres) around it.
+OUTSIDE_M = 500.0
+#: Unions of tiles kept per region.
+UNIONS_KEPT = 512
 
 
 class MapFormatError(ValueError):
@@ -243,7 +247,11 @@ def _tiles(geometry: BaseGeometry, bounds: tuple[float, ...], out: list[BaseGeom
 
 
 class DrivableRegion:
-    """R = (D ⊕ margin) ∪ (the plane outside the map's extent), indexed in tiles (see the module)."""
+    """R = (D ⊕ margin) ∪ (the plane outside the map's extent), indexed in tiles (see the module).
+
+    The plane outside the extent is indexed too, as four strips ``OUTSIDE_M`` wide around it, so
+    R near any box within them is a union of tiles; the unions read are kept by the tiles they
+    join (``UNIONS_KEPT``, the oldest dropped first): sets near each other read one union."""
 
     def __init__(self, drivable: BaseGeometry, extent: tuple[float, ...], margin: float) -> None:
         grown = drivable.buffer(margin, quad_segs=4) if margin > 0 else drivable
@@ -251,24 +259,44 @@ class DrivableRegion:
         self.grown = grown
         shapely.prepare(grown)
         self.extent = extent
-        self.extent_box = shapely.box(*extent)
+        e0, f0, e1, f1 = extent
+        w = OUTSIDE_M
+        self.indexed = (e0 - w, f0 - w, e1 + w, f1 + w)
         tiles: list[BaseGeometry] = []
         _tiles(grown, grown.bounds, tiles)
+        strips = [(e0 - w, f0 - w, e0, f1 + w), (e1, f0 - w, e1 + w, f1 + w),
+                  (e0, f0 - w, e1, f0), (e0, f1, e1, f1 + w)]  # fmt: skip
+        #: The tiles of D ⊕ margin come first, then the four strips.
+        self.road_tiles = len(tiles)
+        tiles += [shapely.box(*strip) for strip in strips]
         self.tiles = np.array(tiles, dtype=object)
         self.tree = shapely.STRtree(self.tiles)
+        self._unions: dict[tuple[int, ...], BaseGeometry] = {}
+        self._lock = threading.Lock()
 
     def near(self, bounds: tuple[float, ...]) -> BaseGeometry:
         """R within (at least) the box ``bounds`` (x0, y0, x1, y1): the union of the tiles the box
-        meets and of the part of the box outside the extent."""
+        meets, and of the part of the box beyond the indexed strips."""
         box = shapely.box(*bounds)
-        parts = list(self.tiles[self.tree.query(box)])
-        x0, y0, x1, y1 = bounds
-        e0, f0, e1, f1 = self.extent
-        if x0 < e0 or y0 < f0 or x1 > e1 or y1 > f1:
-            parts.append(box.difference(self.extent_box))
-        if not parts:
-            return shapely.Polygon()
-        return parts[0] if len(parts) == 1 else shapely.union_all(parts)
+        union = self._union(tuple(sorted(self.tree.query(box).tolist())))
+        if covers_box(self.indexed, bounds):
+            return union
+        return shapely.union(union, box.difference(shapely.box(*self.indexed)))
+
+    def _union(self, indices: tuple[int, ...]) -> BaseGeometry:
+        """The union of the tiles ``indices`` (prepared), kept."""
+        with self._lock:
+            found = self._unions.get(indices)
+        if found is not None:
+            return found
+        parts = self.tiles[list(indices)]
+        union = shapely.Polygon() if not len(parts) else shapely.union_all(parts)
+        shapely.prepare(union)
+        with self._lock:
+            if len(self._unions) >= UNIONS_KEPT:
+                del self._unions[next(iter(self._unions))]
+            self._unions[indices] = union
+        return union
 
     def covers_xy(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Whether each point lies in R."""
@@ -276,6 +304,16 @@ class DrivableRegion:
         e0, f0, e1, f1 = self.extent
         outside = (x < e0) | (x > e1) | (y < f0) | (y > f1)
         return outside | shapely.intersects_xy(self.grown, x, y)
+
+
+def covers_box(outer: tuple[float, ...], inner: tuple[float, ...]) -> bool:
+    """Whether the box ``outer`` holds the box ``inner`` (both x0, y0, x1, y1)."""
+    return (
+        outer[0] <= inner[0]
+        and outer[1] <= inner[1]
+        and outer[2] >= inner[2]
+        and outer[3] >= inner[3]
+    )
 
 
 def cut_to(k_set: BaseGeometry, region: BaseGeometry) -> BaseGeometry:

@@ -21,6 +21,7 @@ import numpy as np
 import shapely
 from shapely.geometry.base import BaseGeometry
 
+from reach.box_tubes import box_tubes
 from reach.engine import FRTEngine
 from reach.frames import Pose
 from reach.sets import FRTSet
@@ -97,4 +98,28 @@ def conservative_union(
 ) -> UnionSet:
     """The engine's conservative set of each row of ``bounds`` [M, 8], as one union: it contains
     :func:`exact_union` of the same bounds, member by member."""
-    return UnionSet([engine.conservative(pose, v_start, b) for b in np.asarray(bounds)])
+    (union,) = conservative_sets(engine, [pose], [v_start], [np.asarray(bounds).reshape(-1, 8)])
+    return union  # type: ignore[return-value]
+
+
+def conservative_sets(
+    engine: FRTEngine,
+    poses: Sequence[Pose],
+    v_starts: Sequence[float],
+    bounds: Sequence[np.ndarray],
+) -> list[FRTSet]:
+    """The conservative set of each setting: for one row of bounds [8] its box tube
+    (``FRTEngine.conservative``), for rows [M, 8] the union of theirs (:func:`conservative_union`);
+    the outer bounds of every row of every setting propagated together (``reach.box_tubes``)."""
+    rows = [np.asarray(b, dtype=np.float64) for b in bounds]
+    counts = [1 if r.ndim == 1 else len(r) for r in rows]
+    flat_poses = [pose for pose, c in zip(poses, counts, strict=True) for _ in range(c)]
+    flat_v = [float(v) for v, c in zip(v_starts, counts, strict=True) for _ in range(c)]
+    tubes = box_tubes(engine, flat_poses, flat_v, np.concatenate([r.reshape(-1, 8) for r in rows]))
+    out: list[FRTSet] = []
+    start = 0
+    for r, c in zip(rows, counts, strict=True):
+        members = tubes[start : start + c]
+        out.append(members[0] if r.ndim == 1 else UnionSet(members))
+        start += c
+    return out

@@ -16,7 +16,6 @@ KERNEL_REASON = "A numeric kernel kept whole so its maths reads in one place."
 
 #: The numeric kernels of reach/, by qualified name (module.Class.function).
 KERNELS = {
-    "reach.outer_bound.outer_bound",
     "reach.corridors._Corridors.supports",
     "reach.partition.partition_tubes",
     "reach.partition.partition_supports",

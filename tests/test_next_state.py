@@ -171,3 +171,40 @@ def test_effective_config_fields_are_the_schemas() -> None:
     assert set(AgentConfig.of(Settings(), {}).as_dict()) == set(EffectiveConfig.model_fields) - {
         "beta_high"
     }
+
+
+def test_the_ranges_checked_together_refuse_what_the_engine_refuses() -> None:
+    """``out_of_ranges`` flags every row ``FRTEngine.validate`` refuses (the flagged ones are then
+    checked on their own), for each class, at and around the ranges' ends."""
+    from reach.agent_classes import agent_class, engine_for_class
+    from reach.contract import BOUND_COLUMNS
+    from reach.engine import FRTEngine, OutOfRangeError
+    from service.flows.next_state import out_of_ranges
+
+    engine = FRTEngine()
+    rng = np.random.default_rng(7)
+    classes, speeds, rows, refused = [], [], [], []
+    for _ in range(3000):
+        klass = agent_class(str(rng.choice(["car", "pedestrian", "cyclist"])))
+        ranges = engine_for_class(engine, klass).ranges
+        ends = np.array([ranges[name] for name in ("v_start", *BOUND_COLUMNS)])
+        # Mostly inside, some at an end, some just beyond one by more or less than the slack.
+        values = rng.uniform(ends[:, 0], ends[:, 1])
+        k = int(rng.integers(0, 9))
+        values[k] = ends[k, int(rng.integers(0, 2))] + float(
+            rng.choice([0.0, 5e-10, -5e-10, 2e-9, -2e-9, 0.1, -0.1])
+        )
+        if rng.random() < 0.05:
+            values[int(rng.integers(0, 9))] = float(rng.choice([np.nan, np.inf]))
+        try:
+            engine_for_class(engine, klass).validate(values[0], values[1:])
+            refused.append(False)
+        except OutOfRangeError:
+            refused.append(True)
+        classes.append(klass)
+        speeds.append(float(values[0]))
+        rows.append(values[1:].tolist())
+    flagged = out_of_ranges(engine, classes, speeds, rows)
+    assert [f for f, r in zip(flagged, refused, strict=True) if r] == [True] * sum(refused)
+    assert flagged == refused  # and nothing more: the same comparisons
+    assert sum(refused) > 300

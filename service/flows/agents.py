@@ -34,10 +34,10 @@ from service.flows.next_state import (
     resolve_class,
 )
 from service.runtime.audit import Scored, ServedVersion
+from service.runtime.conservative import cached_conservative
 from service.runtime.jobs import FRTJob
 from service.runtime.scheduler import FRTKey
 from service.runtime.services import Services
-from service.runtime.settings import Settings
 from service.runtime.stores import AgentState, Update, UpdateFn
 from service.wire.errors import AgentNotFoundError, APIError, StaleTimestampError
 from service.wire.schemas import (
@@ -180,9 +180,8 @@ def _prepared(
         return False
     if previous is None:
         services.audit.forget(entry.agent_id)  # versions of an earlier life of this id
-    entry.scored = _scored_before_building(services, entry.agent_id, request, previous, entry.patch)
     try:
-        entry.inputs = _state_inputs(services.settings, entry, previous)
+        entry.inputs = _state_inputs(services, entry, previous, score=True)
     except APIError as exc:
         results[entry.index] = exc
         return False
@@ -197,9 +196,8 @@ def _apply(services: Services, entry: _Entry, candidate: AgentState) -> UpdateFn
     def apply(current: AgentState | None) -> AgentState:
         if _same(current, entry.previous):
             return candidate
-        state, belief = next_state(
-            current, _state_inputs(settings, entry, current), settings, engine
-        )
+        inputs = _state_inputs(services, entry, current)
+        state, belief = next_state(current, inputs, settings, engine)
         entry.built.append(belief)
         return state
 
@@ -222,11 +220,11 @@ def _submitted(
         applied.append((entry, state, services.job_for(state)))
     for _, _, job in applied:
         services.submit(job)
-    conservative = [services.conservative(job) for _, _, job in applied]
+    conservative = cached_conservative(services, [job for _, _, job in applied])
     later = []
     for (entry, state, job), frt in zip(applied, conservative, strict=True):
         if services.settings.audit:
-            later += _record_for_audit(services, state, job.key, frt, entry.request, entry.scored)
+            later += _record_for_audit(services, entry, state, job.key, frt)
         results[entry.index] = Applied(state, job, entry.built[-1])
     if later:  # scored once the answers are on their way
         asyncio.get_running_loop().call_soon(_audit_later, services, later)
@@ -257,30 +255,22 @@ def observation_response(
     )
 
 
-def _scored_before_building(
-    services: Services,
-    agent_id: str,
-    request: ObservationRequest,
-    previous: AgentState | None,
-    patch: dict[str, Any],
-) -> list[Scored] | None:
-    """The observed position scored against the agent's earlier sets now, where the new bounds
-    depend on it (adaptive gamma); None where it is scored after the answer."""
-    overrides = {**(previous.config if previous else {}), **patch}
-    settings = services.settings
-    if not (settings.audit and AgentConfig.of(settings, overrides).coverage_target is not None):
-        return None
-    position = request.state
-    return services.score_position(agent_id, position.x, position.y, request.timestamp)
-
-
-def _state_inputs(settings: Settings, entry: _Entry, prior: AgentState | None) -> StateInputs:
+def _state_inputs(
+    services: Services, entry: _Entry, prior: AgentState | None, score: bool = False
+) -> StateInputs:
     """The observation's inputs to the agent's next state from ``prior``: its class, overrides
-    and config, with adaptive gamma's step taken where it was scored before building."""
+    and config, with adaptive gamma's step taken where the observed position was scored against
+    the agent's earlier sets before building (with ``score``, it is scored now for an agent with
+    a ``coverage_target``: the misses move the gamma its bounds are fitted with)."""
     request = entry.request
     overrides = {**(prior.config if prior else {}), **entry.patch}
     klass, overrides = resolve_class(entry.agent_id, request.agent_class, prior, overrides)
-    config = AgentConfig.of(settings, overrides)
+    config = AgentConfig.of(services.settings, overrides)
+    if score and services.settings.audit and config.coverage_target is not None:
+        position = request.state
+        entry.scored = services.score_position(
+            entry.agent_id, position.x, position.y, request.timestamp
+        )
     gamma_state = None
     if entry.scored is not None:
         gamma_state = adapt_gamma(prior, entry.scored, config)
@@ -291,16 +281,15 @@ def _state_inputs(settings: Settings, entry: _Entry, prior: AgentState | None) -
 
 
 def _record_for_audit(
-    services: Services,
-    state: AgentState,
-    key: FRTKey,
-    conservative: FRTSet,
-    request: ObservationRequest,
-    scored: list[Scored] | None,
+    services: Services, entry: _Entry, state: AgentState, key: FRTKey, conservative: FRTSet
 ) -> list[tuple[str, float, float, float]]:
     """Keep the new version for auditing later positions, and audit this one: at once where it
     was scored already (adaptive gamma); else the position to score after the answer."""
-    config = AgentConfig.of(services.settings, state.config)
+    inputs = entry.inputs
+    if inputs is not None and state.config is inputs.overrides:  # the state built first
+        radius = inputs.config.collision_radius
+    else:
+        radius = AgentConfig.of(services.settings, state.config).collision_radius
     services.audit.record(
         state.agent_id,
         ServedVersion(
@@ -308,13 +297,14 @@ def _record_for_audit(
             key=key,
             t0=state.timestamp,
             horizon_end=state.timestamp + services.horizon_s(),
-            collision_radius=float(config.collision_radius),
+            collision_radius=float(radius),
             agent_class=str(state.config.get("agent_class", "car")),
             conservative=conservative,
         ),
     )
-    if scored is not None:
-        services.take_audit(state.agent_id, scored, request.timestamp)
+    request = entry.request
+    if entry.scored is not None:
+        services.take_audit(state.agent_id, entry.scored, request.timestamp)
         return []
     position = request.state
     return [(state.agent_id, position.x, position.y, request.timestamp)]

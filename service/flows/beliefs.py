@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from service.flows.confidence import normalised_rows
+from service.flows.confidence import Belief, normalised_rows
 from service.flows.modes import (
     joint_beta_marginals,
     joint_mode_betas,
@@ -46,14 +46,14 @@ class BeliefStep:
 class Joint:
     """One agent's updated belief b(m, beta_i): hypotheses [n], the new prediction's weights
     [M] and normalised log-probabilities [M, n]; with, from step 2, its mode posterior [M], each
-    mode's point estimate of beta [M] and the marginal belief over beta [n] (log-probabilities)."""
+    mode's point estimate of beta [M] and the marginal belief over beta."""
 
     betas: np.ndarray
     weights: np.ndarray
     log_probs: np.ndarray
     posterior: np.ndarray | None = None
     mode_betas: np.ndarray | None = None
-    marginal: np.ndarray | None = None
+    marginal: Belief | None = None
 
     def to_dict(self) -> dict[str, list[float]]:
         """The stored form of the joint belief (``JointBelief.to_dict``)."""
@@ -72,51 +72,54 @@ def groups(keys: Sequence[Hashable]) -> dict[Hashable, list[int]]:
     return out
 
 
-def _prior_joint(prior: AgentState) -> tuple[np.ndarray, np.ndarray]:
-    """The last state's belief over (mode, beta), normalised [Mp, n], and its weights [Mp]; a
-    single Gaussian's is its beta belief as one mode."""
-    if prior.modes is not None:
-        belief = prior.modes["belief"]
-        log_probs = np.asarray(belief["log_probs"], dtype=np.float64)
-        return joint_normalised(log_probs[None])[0], np.asarray(belief["weights"], np.float64)
-    log_probs = np.asarray(prior.belief["log_probs"], dtype=np.float64)
-    return normalised_rows(log_probs[None]), np.ones(1)
-
-
-def _first_steps(prior: AgentState) -> tuple[np.ndarray, np.ndarray]:
-    """Each mode's first predicted step of the last state: means [Mp, 2], covs [Mp, 2, 2]."""
-    if prior.modes is not None:
-        return (
-            np.asarray(prior.modes["first_mean"], dtype=np.float64),
-            np.asarray(prior.modes["first_cov"], dtype=np.float64),
-        )
-    return (
-        np.asarray(prior.prediction["mean"][:1], dtype=np.float64),
-        np.asarray(prior.prediction["cov"][:1], dtype=np.float64),
-    )
-
-
 #: One agent's belief over (mode, beta) on the way: normalised log-probabilities [M, n] and the
 #: weights [M] its transition mixes back towards.
 _Prior = tuple[np.ndarray, np.ndarray]
 
 
-def _scored(steps: Sequence[BeliefStep], members: list[int], joints: list[_Prior | None]) -> None:
-    """The filter step of the agents ``members`` (one shape, each with a last state and an
-    action), in place."""
-    log_probs = np.stack([joints[i][0] for i in members])  # type: ignore[index]
-    weights = np.stack([joints[i][1] for i in members])  # type: ignore[index]
-    firsts = [_first_steps(steps[i].prior) for i in members]  # type: ignore[arg-type]
-    observed = (
-        np.stack([steps[i].action for i in members]),  # type: ignore[arg-type]
-        np.stack([f[0] for f in firsts]),
-        np.stack([f[1] for f in firsts]),
-    )
-    epsilons = np.array([steps[i].epsilon for i in members], dtype=np.float64)
-    betas = np.stack([steps[i].betas for i in members])
-    updated = joint_update(log_probs, weights, epsilons, betas, observed)
+def _modes_of(prior: AgentState) -> int:
+    return 1 if prior.modes is None else len(prior.modes["first_mean"])
+
+
+def _priors(priors: list[AgentState]) -> tuple[np.ndarray, np.ndarray]:
+    """The last states' beliefs over (mode, beta), normalised [G, Mp, n], and their weights
+    [G, Mp] (states with Mp modes each); a single Gaussian's is its beta belief as one mode."""
+    if priors[0].modes is not None:
+        log_probs = np.array([p.modes["belief"]["log_probs"] for p in priors], dtype=np.float64)  # type: ignore[index]
+        weights = np.array([p.modes["belief"]["weights"] for p in priors], dtype=np.float64)  # type: ignore[index]
+        return joint_normalised(log_probs), weights
+    log_probs = np.array([p.belief["log_probs"] for p in priors], dtype=np.float64)
+    return normalised_rows(log_probs)[:, None, :], np.ones((len(priors), 1))
+
+
+def _first_steps(priors: list[AgentState]) -> tuple[np.ndarray, np.ndarray]:
+    """Each mode's first predicted step of the last states: means [G, Mp, 2], covs
+    [G, Mp, 2, 2] (states with Mp modes each)."""
+    if priors[0].modes is not None:
+        means = [p.modes["first_mean"] for p in priors]  # type: ignore[index]
+        covs = [p.modes["first_cov"] for p in priors]  # type: ignore[index]
+    else:
+        means = [p.prediction["mean"][:1] for p in priors]
+        covs = [p.prediction["cov"][:1] for p in priors]
+    return np.array(means, dtype=np.float64), np.array(covs, dtype=np.float64)
+
+
+def _updated(steps: Sequence[BeliefStep], members: list[int], joints: list[_Prior | None]) -> None:
+    """The last beliefs of the agents ``members`` (states with as many modes each), after the
+    filter step of those with an action, into ``joints``."""
+    priors: list[AgentState] = [steps[i].prior for i in members]  # type: ignore[misc]
+    log_probs, weights = _priors(priors)
+    scored = [j for j, i in enumerate(members) if steps[i].action is not None]
+    if scored:
+        means, covs = _first_steps([priors[j] for j in scored])
+        actions = np.stack([steps[members[j]].action for j in scored])  # type: ignore[misc]
+        epsilons = np.array([steps[members[j]].epsilon for j in scored], dtype=np.float64)
+        betas = np.stack([steps[members[j]].betas for j in scored])
+        log_probs[scored] = joint_update(
+            log_probs[scored], weights[scored], epsilons, betas, (actions, means, covs)
+        )
     for j, i in enumerate(members):
-        joints[i] = (updated[j], weights[j])
+        joints[i] = (log_probs[j], weights[j])
 
 
 def _carried(steps: Sequence[BeliefStep], joints: list[_Prior | None]) -> list[np.ndarray]:
@@ -150,16 +153,11 @@ def _carried(steps: Sequence[BeliefStep], joints: list[_Prior | None]) -> list[n
 
 def updated_joints(steps: Sequence[BeliefStep]) -> list[Joint]:
     """Step 1 of every agent (see the module): its updated belief over (mode, beta)."""
-    joints: list[_Prior | None] = [
-        None if s.prior is None else _prior_joint(s.prior) for s in steps
-    ]
-    keys = [
-        None if j is None or s.action is None else j[0].shape
-        for s, j in zip(steps, joints, strict=True)
-    ]
+    joints: list[_Prior | None] = [None] * len(steps)
+    keys = [None if s.prior is None else _modes_of(s.prior) for s in steps]
     for key, members in groups(keys).items():
         if key is not None:
-            _scored(steps, members, joints)
+            _updated(steps, members, joints)
     carried = _carried(steps, joints)
     return [
         Joint(s.betas, s.weights, log_probs) for s, log_probs in zip(steps, carried, strict=True)
@@ -175,7 +173,7 @@ def summarised(joints: Sequence[Joint]) -> list[Joint]:
         betas = np.stack([joints[i].betas for i in members])
         posterior = joint_mode_probs(log_probs)
         mode_betas = joint_mode_betas(betas, log_probs)
-        marginal = joint_beta_marginals(log_probs)
+        marginal = Belief.rows(betas, joint_beta_marginals(log_probs))
         for j, i in enumerate(members):
             joint = joints[i]
             out[i] = Joint(

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cached_property, lru_cache
 from typing import Any
 
 import numpy as np
@@ -171,12 +171,33 @@ class Belief:
 
     __hash__ = None  # type: ignore[assignment]
 
-    @property
+    @classmethod
+    def rows(cls, betas: np.ndarray, log_probs: np.ndarray) -> list[Belief]:
+        """The beliefs of rows [A, n] normalised already (:func:`normalised_rows`' output, which
+        construction would keep bit for bit), with their probabilities and point estimates
+        computed for all rows at once."""
+        probs = probability_rows(log_probs)
+        estimates = point_estimates(betas, log_probs)
+        out = []
+        for i in range(len(log_probs)):
+            belief = object.__new__(cls)
+            for name, value in (("betas", betas[i].copy()), ("log_probs", log_probs[i].copy())):
+                value.flags.writeable = False
+                object.__setattr__(belief, name, value)
+            probs[i].flags.writeable = False
+            belief.__dict__["probs"] = probs[i]
+            belief.__dict__["beta"] = float(estimates[i])
+            out.append(belief)
+        return out
+
+    @cached_property
     def probs(self) -> np.ndarray:
         """b(beta_i): non-negative, summing to one."""
-        return probability_rows(self.log_probs)
+        probs = probability_rows(self.log_probs)
+        probs.flags.writeable = False
+        return probs
 
-    @property
+    @cached_property
     def beta(self) -> float:
         """The point estimate ``beta = sum_i beta_i b_+(beta_i)`` (paper, the equation after ``beta``).
 

@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from service.flows.bounds import PredictionError, validate_prediction
+from service.flows.bounds import PredictionError, validate_predictions
 from service.flows.confidence import (
     Belief,
     log_likelihood_rows,
@@ -303,24 +303,33 @@ class Mixture:
     covs: np.ndarray
 
 
-def validate_mixture(modes: list[Any], dt: Any, max_steps: int, max_modes: int) -> Mixture:
+def validate_mixture(
+    modes: list[Any],
+    dt: Any,
+    max_steps: int,
+    max_modes: int,
+    checked: list[tuple[np.ndarray, np.ndarray] | PredictionError] | None = None,
+) -> Mixture:
     """Check a multi-modal prediction: at most ``max_modes`` modes, each a valid Gaussian
     (``validate_prediction``) with as many steps as the first, weights positive and finite
     (normalised here: they need not sum to one). Raises PredictionError naming the field
     (``prediction.modes[32]`` for the first mode beyond the limit,
-    ``prediction.modes[m].cov[k]`` ...)."""
+    ``prediction.modes[m].cov[k]`` ...). ``checked``: the modes' ``validate_predictions``
+    results, if the caller has them (a frame's modes are checked together)."""
     if len(modes) > max_modes:
         raise PredictionError(f"prediction.modes[{max_modes}]", f"at most {max_modes} modes")
+    if checked is None:
+        checked = validate_predictions([(m.mean, m.cov, dt) for m in modes], max_steps)
     means, covs, weights = [], [], []
-    for m, mode in enumerate(modes):
+    for m, (mode, result) in enumerate(zip(modes, checked, strict=True)):
         field = f"prediction.modes[{m}]"
         w = mode.weight
         if not (isinstance(w, int | float) and math.isfinite(w) and w > 0):
             raise PredictionError(f"{field}.weight", "must be a positive finite number")
-        try:
-            mean, cov = validate_prediction(mode.mean, mode.cov, dt, max_steps)
-        except PredictionError as exc:
-            raise PredictionError(exc.field.replace("prediction", field, 1), exc.message) from None
+        if isinstance(result, PredictionError):
+            field_of = result.field.replace("prediction", field, 1)
+            raise PredictionError(field_of, result.message) from None
+        mean, cov = result
         if means and mean.shape != means[0].shape:
             raise PredictionError(
                 f"{field}.mean", f"has {len(mean)} steps but prediction.modes[0] {len(means[0])}"

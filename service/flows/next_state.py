@@ -26,12 +26,13 @@ bit for bit, against ``service.flows.confidence.update_belief`` and the paper's 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
 
 from reach.agent_classes import DEFAULT_CLASS, AgentClass, agent_class, engine_for_class
+from reach.contract import BOUND_COLUMNS
 from reach.engine import FRTEngine, OutOfRangeError
 from service.flows.agent_config import AgentConfig
 from service.flows.beliefs import BeliefStep, Joint, groups, summarised, updated_joints
@@ -84,11 +85,15 @@ class ModeSet:
     mode_mass: float
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        return {name: getattr(self, name) for name in _MODE_SET_FIELDS}
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> ModeSet:
         return cls(**data)
+
+
+#: ModeSet's fields in order (``dataclasses.asdict`` deep-copies what is built afresh anyway).
+_MODE_SET_FIELDS = tuple(f.name for f in fields(ModeSet))
 
 
 def observed_prediction(
@@ -105,29 +110,31 @@ def observed_prediction(
 def observed_predictions(
     predictions: Sequence[ObservationPrediction | Prediction], settings: RequestLimits
 ) -> list[ObservedPrediction | APIError]:
-    """:func:`observed_prediction` of each prediction of a frame: the single Gaussians validated
-    together (``validate_predictions``), the mixtures one by one."""
+    """:func:`observed_prediction` of each prediction of a frame: every Gaussian of every
+    prediction (the single ones and each mode of the mixtures) validated together
+    (``validate_predictions``)."""
     out: list[ObservedPrediction | APIError | None] = [None] * len(predictions)
-    singles: list[tuple[int, tuple[Any, Any, Any]]] = []
+    gaussians: list[tuple[Any, Any, Any]] = []  # every Gaussian to validate
+    first: list[int] = []  # per prediction, where its Gaussians start in ``gaussians``
     for i, prediction in enumerate(predictions):
+        first.append(len(gaussians))
         modes = getattr(prediction, "modes", None)
         try:
             if modes is not None and len(modes) > 1:
-                out[i] = _observed_mixture(prediction, settings)
+                for m, mode in enumerate(modes[:MAX_MODES]):
+                    check_prediction_steps(f"prediction.modes.{m}", mode.mean, settings)
+                gaussians += [(mode.mean, mode.cov, prediction.dt) for mode in modes[:MAX_MODES]]
                 continue
             mean, cov = (prediction.mean, prediction.cov) if modes is None else _one(modes)
             check_prediction_steps("prediction", mean, settings)
         except APIError as exc:
             out[i] = exc
             continue
-        singles.append((i, (mean, cov, prediction.dt)))
-    checked = validate_predictions([g for _, g in singles], settings.max_prediction_steps)
-    for (i, (_, _, dt)), result in zip(singles, checked, strict=True):
-        if isinstance(result, PredictionError):
-            out[i] = _field_error(result)
-        else:
-            mean, cov = result
-            out[i] = ObservedPrediction(Mixture(dt, np.ones(1), mean[None], cov[None]), False)
+        gaussians.append((mean, cov, prediction.dt))
+    checked = validate_predictions(gaussians, settings.max_prediction_steps)
+    for i, prediction in enumerate(predictions):
+        if out[i] is None:
+            out[i] = _observed(prediction, checked[first[i] :], settings)
     return out  # type: ignore[return-value]
 
 
@@ -135,16 +142,27 @@ def _one(modes: list[Any]) -> tuple[Any, Any]:
     return modes[0].mean, modes[0].cov
 
 
-def _observed_mixture(
-    prediction: ObservationPrediction | Prediction, settings: RequestLimits
-) -> ObservedPrediction:
-    modes = prediction.modes  # type: ignore[union-attr]
-    for m, mode in enumerate(modes[:MAX_MODES]):
-        check_prediction_steps(f"prediction.modes.{m}", mode.mean, settings)
+def _observed(
+    prediction: ObservationPrediction | Prediction,
+    checked: list[tuple[np.ndarray, np.ndarray] | PredictionError],
+    settings: RequestLimits,
+) -> ObservedPrediction | APIError:
+    """The prediction from its Gaussians' checks (``checked`` starts with them): one Gaussian,
+    or a mixture (a 422 naming the field where a check failed)."""
+    modes = getattr(prediction, "modes", None)
+    if modes is None or len(modes) == 1:
+        result = checked[0]
+        if isinstance(result, PredictionError):
+            return _field_error(result)
+        mean, cov = result
+        return ObservedPrediction(Mixture(prediction.dt, np.ones(1), mean[None], cov[None]), False)
+    count = min(len(modes), MAX_MODES)
     try:
-        mixture = validate_mixture(modes, prediction.dt, settings.max_prediction_steps, MAX_MODES)
+        mixture = validate_mixture(
+            modes, prediction.dt, settings.max_prediction_steps, MAX_MODES, checked[:count]
+        )
     except PredictionError as exc:
-        raise _field_error(exc) from None
+        return _field_error(exc)
     return ObservedPrediction(mixture, True)
 
 
@@ -344,26 +362,68 @@ def next_states(
         for a in range(len(inputs))
         for m in chosen[a]
     ]
-    fitted = iter(bounds_of_rows(rows, settings))
+    fitted = bounds_of_rows(rows, settings)
+    speeds = [inputs[a].request.state.speed for a in range(len(inputs)) for _ in chosen[a]]
+    classes = [inputs[a].klass for a in range(len(inputs)) for _ in chosen[a]]
+    outside = iter(out_of_ranges(engine, classes, speeds, fitted))
+    fitted_rows = iter(fitted)
     results: list[tuple[AgentState, Belief] | APIError] = []
     for prior, agent, joint, modes in zip(priors, inputs, joints, chosen, strict=True):
-        bounds = {m: next(fitted) for m in modes}
+        bounds = {m: (next(fitted_rows), next(outside)) for m in modes}
         refused = _first_refusal(engine, agent, bounds)
         if refused is not None:
             results.append(refused)
             continue
-        results.append(_assembled(prior, agent, joint, modes, bounds))  # type: ignore[arg-type]
+        kept = {m: row for m, (row, _) in bounds.items()}
+        results.append(_assembled(prior, agent, joint, modes, kept))  # type: ignore[arg-type]
     return results
 
 
+def out_of_ranges(
+    engine: FRTEngine,
+    classes: Sequence[AgentClass],
+    speeds: Sequence[float],
+    rows: Sequence[list[float] | APIError],
+) -> list[bool]:
+    """Per row of bounds, whether :func:`check_ranges` may refuse it (the speed and the bounds
+    outside the class's ranges, or a lower bound above its upper), for all rows at once with
+    ``FRTEngine.validate``'s comparisons on its table of ranges; an engine validating otherwise,
+    and a row that is an error, say True (such rows are checked, or answered, one by one)."""
+    out = [True] * len(rows)
+    engines = [engine_for_class(engine, k) for k in classes]
+    table = [e.ranges if type(e).validate is FRTEngine.validate else None for e in engines]
+    checked = [
+        i for i, r in enumerate(rows) if table[i] is not None and not isinstance(r, APIError)
+    ]
+    if not checked:
+        return out
+    names = ("v_start", *BOUND_COLUMNS)
+    values = np.array([[speeds[i], *rows[i]] for i in checked], dtype=np.float64)  # type: ignore[misc]
+    limits = np.array([[table[i][name] for name in names] for i in checked], dtype=np.float64)  # type: ignore[index]
+    inside = (
+        np.isfinite(values)
+        & (limits[:, :, 0] - 1e-9 <= values)
+        & (values <= limits[:, :, 1] + 1e-9)
+    )
+    ordered = ~(values[:, 1:5] > values[:, 5:9] + 1e-9)  # each lower bound at most its upper
+    ok = inside.all(axis=1) & ordered.all(axis=1)
+    for i, fine in zip(checked, ok.tolist(), strict=True):
+        out[i] = not fine
+    return out
+
+
 def _first_refusal(
-    engine: FRTEngine, inputs: StateInputs, bounds: dict[int, list[float] | APIError]
+    engine: FRTEngine,
+    inputs: StateInputs,
+    bounds: dict[int, tuple[list[float] | APIError, bool]],
 ) -> APIError | None:
     """The error of the agent's first mode whose bounds failed or fall outside its class's
-    ranges, if any."""
-    for row in bounds.values():
+    ranges (checked on their own where :func:`out_of_ranges` says they may), if any."""
+    for row, outside in bounds.values():
         if isinstance(row, APIError):
             return row
+        if not outside:
+            continue
         try:
             check_ranges(engine, inputs.klass, inputs.request.state.speed, row)
         except FieldError as exc:
@@ -382,7 +442,7 @@ def _assembled(
     mixture = inputs.prediction.mixture
     posterior, mode_betas = joint.posterior, joint.mode_betas
     main = int(np.argmax(posterior))  # type: ignore[arg-type]
-    belief = Belief(betas=joint.betas, log_probs=joint.marginal)  # type: ignore[arg-type]
+    belief = joint.marginal
     modes = None
     if len(mixture.weights) > 1:
         modes = ModeSet(
@@ -415,7 +475,7 @@ def _assembled(
         modes=modes,
         gamma_state=inputs.gamma_state,
     )
-    return state, belief
+    return state, belief  # type: ignore[return-value]
 
 
 def modes_out(modes: dict[str, Any] | None) -> list[ModeOut] | None:

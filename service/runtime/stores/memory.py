@@ -98,29 +98,30 @@ class InMemoryAgentStore:
                 self._next(update, entry) for update, entry in zip(updates, entries, strict=True)
             ]
             with self._lock:
-                results = [
-                    self._write(agent_id, data) if isinstance(data, bytes) else data
-                    for agent_id, data in zip(ids, built, strict=True)
+                return [
+                    self._write(agent_id, *next_) if isinstance(next_, tuple) else next_
+                    for agent_id, next_ in zip(ids, built, strict=True)
                 ]
-            return [pickle.loads(r) if isinstance(r, bytes) else r for r in results]
         finally:
             for agent_id, lock in reversed(locks):
                 self._release(agent_id, lock)
 
     @staticmethod
-    def _next(update: Update, entry: _Entry | None) -> bytes | APIError:
-        """The agent's next state, pickled, or why it is refused (called under its lock)."""
+    def _next(update: Update, entry: _Entry | None) -> tuple[AgentState, bytes] | APIError:
+        """The agent's next state and its pickle, or why it is refused (called under its
+        lock). The state is the caller's (``fn``'s result): the store keeps only the pickle."""
         agent_id, fn, timestamp = update
         current = None if entry is None else entry.state()
         try:
             if timestamp is not None and current is not None and timestamp <= current.timestamp:
                 raise StaleTimestampError(agent_id, timestamp, current.timestamp)
             # fn gets a copy: a half-applied change it raises on never leaks into the store.
-            return _pickled(fn(current))
+            new = fn(current)
+            return new, _pickled(new)
         except APIError as exc:
             return exc
 
-    def _write(self, agent_id: str, data: bytes) -> bytes | APIError:
+    def _write(self, agent_id: str, new: AgentState, data: bytes) -> AgentState | APIError:
         """Store ``data`` as the agent's state with a fresh TTL, unless a new agent does not fit
         (called with ``_lock`` held)."""
         if agent_id not in self._entries:
@@ -129,7 +130,7 @@ class InMemoryAgentStore:
                 return StoreFullError(self._max_agents)
         self._entries.pop(agent_id, None)
         self._entries[agent_id] = _Entry(data, self._clock() + self._ttl_s)
-        return data
+        return new
 
     async def delete(self, agent_id: str) -> bool:
         lock = self._acquire(agent_id)

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from reach.box_tubes import box_tubes, box_tubes_of
 from reach.contract import BOUND_COLUMNS, HORIZON_S, INITIAL_SET, PARAM_RANGES, InitialSet
 from reach.field_stack import FAR, WindowStack, block_reduce, dilate_discs, span_reduce
 from reach.field_tube import (
@@ -162,42 +163,13 @@ class FRTEngine:
         )
 
     def conservative(self, pose: Pose, v_start: float, bounds: np.ndarray) -> BoxTubeSet:
-        """The outer bound as a set: contains the exact set; its boxes alone, cheap enough for the request's thread."""
-        return self._box_tube(pose, self.outer(v_start, bounds, support_directions=0))
+        """The outer bound as a set: contains the exact set; its boxes alone, cheap enough for the
+        request's thread (``reach.box_tubes``, which builds a frame's together)."""
+        return box_tubes(self, [pose], [v_start], np.asarray(bounds, float).reshape(1, 8))[0]
 
     def _box_tube(self, pose: Pose, ob: OuterBound) -> BoxTubeSet:
-        """Tube j: the sweep boxes up to s_j + slice_dt / 2 (the half slice rounded up), merged
-        ``SWEEPS_PER_WINDOW`` at a time (a box around each window: a superset that holds the exact
-        set's outer polygons, and fewer boxes for a check of many agents to measure)."""
-        k, g = self.outer_steps_per_slice, SWEEPS_PER_WINDOW
-        n = len(ob.sweep)
-        groups = math.ceil(n / g)
-        padded = np.concatenate([ob.sweep, np.repeat(ob.sweep[-1:], groups * g - n, axis=0)])
-        grouped = padded.reshape(groups, g, 4)
-        boxes = np.stack(
-            [
-                grouped[:, :, 0].min(axis=1),
-                grouped[:, :, 1].max(axis=1),
-                grouped[:, :, 2].min(axis=1),
-                grouped[:, :, 3].max(axis=1),
-            ],
-            axis=1,
-        )
-        upto = [math.ceil(min(j * k + (k + 1) // 2, n) / g) for j in range(self.n_slices)]
-        return BoxTubeSet(
-            pose=pose,
-            slice_dt=self.slice_dt,
-            horizon_s=self.horizon,
-            boxes=boxes,
-            boxes_until=np.array(upto),
-            slice_boxes=np.array([min(j * k, n - 1) // g for j in range(self.n_slices)]),
-            interval_boxes=np.array(
-                [
-                    [min(max(j - 1, 0) * k, n - 1) // g, math.ceil(max(j * k, 1) / g)]
-                    for j in range(self.n_slices)
-                ]
-            ),
-        )
+        """The box tube of the outer bound ``ob`` (``reach.box_tubes``)."""
+        return box_tubes_of(self, [pose], ob.sweep[None])[0]
 
     # ----------------------------------------------------------------- exact set
     def exact(

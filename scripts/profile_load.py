@@ -51,6 +51,7 @@ WORKER_PARTS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("exact set: lattice and polygon fields", ("FRTEngine._grid",)),
     ("exact set: instant and interval fields", ("FRTEngine._instant_fields",
                                                 "FRTEngine._interval_fields")),
+    ("exact set: whether it needs its fields (held check)", ("FRTEngine._held_set",)),
     ("exact set: rest", ("FRTEngine.exact", "exact_union")),
     ("sending the set back", ("_ConnectionBase.send_bytes", "set_to_bytes", "encode_result",
                               "dumps", "BaseGeometry.__reduce__")),

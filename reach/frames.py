@@ -34,6 +34,18 @@ def human_frames(xy_world: np.ndarray, poses: Sequence[Pose]) -> tuple[np.ndarra
     return c * dx + s * dy, -s * dx + c * dy
 
 
+def paired_human_frames(
+    xy_world: np.ndarray, poses: Sequence[Pose]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each world point [P, 2] in the frame of its own human (``poses`` [P]): x, y [P], by the
+    arithmetic of :func:`human_frames` (the same value for each pair)."""
+    c = np.array([math.cos(p.heading) for p in poses])
+    s = np.array([math.sin(p.heading) for p in poses])
+    dx = xy_world[:, 0] - np.array([p.x for p in poses])
+    dy = xy_world[:, 1] - np.array([p.y for p in poses])
+    return c * dx + s * dy, -s * dx + c * dy
+
+
 def to_human_frame(xy_world: np.ndarray, pose: Pose) -> np.ndarray:
     """World points [N, 2] -> the human frame (origin at the human, heading 0)."""
     x, y = human_frames(xy_world, [pose])

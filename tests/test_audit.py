@@ -322,3 +322,34 @@ def test_ledger_keeps_only_versions_that_can_still_cover_and_forgets_idle_agents
     now[0] = 11.0
     ledger.record("d", served("d", 1, 0.0))  # "b" and "c" idle for more than the TTL
     assert len(ledger) == 1 and ledger.covering("d", 1.0) != []
+
+
+def test_a_frames_positions_are_scored_together_as_each_set_measures_them() -> None:
+    """``score_many``: every (position, version) pair's distance is the version's set's own
+    ``clearance`` at that time, bit for bit, for box sets and unions of them together."""
+    from reach.engine import FRTEngine
+    from reach.frames import Pose
+    from reach.union import conservative_sets
+    from service.runtime.audit import ServedVersion, score_many
+    from service.runtime.scheduler import FRTKey
+
+    engine = FRTEngine()
+    rng = np.random.default_rng(11)
+    positions = []
+    for a in range(12):
+        poses = [Pose(*rng.uniform(-20, 20, 2), rng.uniform(-3, 3)) for _ in range(8)]
+        row = np.array([-0.3, -2, -0.3, -2, 0.3, 1, 0.3, 1]) * rng.uniform(0.2, 2)
+        bounds = [row if a % 3 else np.stack([row, 0.5 * row + 0.1]) for _ in poses]
+        sets = conservative_sets(engine, poses, rng.uniform(0, 12, len(poses)), bounds)
+        versions = [
+            ServedVersion(
+                k + 1, FRTKey.of(f"a{a}", k + 1, (k,)), 0.2 * k, 0.2 * k + 3, 1.5, "car", s
+            )
+            for k, s in enumerate(sets)
+        ]
+        positions.append((*rng.uniform(-30, 30, 2).tolist(), 1.55, versions))
+    scored = score_many(positions, lambda _key: None)
+    for (x, y, t, versions), got in zip(positions, scored, strict=True):
+        for v, s in zip(versions, got, strict=True):
+            want = v.conservative.clearance(np.array([[x, y]]), np.array([t - v.t0]))[0]
+            assert s.distance_to_k == want and s.version == v.version and not s.exact

@@ -3,7 +3,8 @@ one pass over the fine grid doing, step by step, the operations its propagation 
 (heading and speed bounds, the stop rule, the ranges of cos and sin over each step's heading
 interval, the interval products, the position sums), so each box is bit for bit the one the
 array propagation gives (``tests/test_box_tubes.py``); no temporary arrays, so a frame's hundred
-settings cost a fraction of the array version's passes over [settings, fine points].
+settings cost a fraction of the array version's passes over [settings, fine points]. It runs
+without the GIL: a thread may propagate a frame's settings while the event loop goes on.
 """
 
 from __future__ import annotations
@@ -96,7 +97,7 @@ def _widen(
     sweep[2], sweep[3] = min(sweep[2], y_lo), max(sweep[3], y_hi)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _rows(
     fine: np.ndarray,
     grid: np.ndarray,

@@ -16,14 +16,16 @@ which has the same sign everywhere.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 import shapely
 from shapely.geometry.base import BaseGeometry
 
-from reach.box_tubes import box_tubes
+from reach.box_tubes import box_tubes_of
 from reach.engine import FRTEngine
 from reach.frames import Pose
+from reach.outer_bound import outer_boxes
 from reach.sets import FRTSet
 
 
@@ -102,6 +104,51 @@ def conservative_union(
     return union  # type: ignore[return-value]
 
 
+@dataclass(frozen=True)
+class SettingRows:
+    """Settings whose conservative sets are to be built: their rows of bounds one after the other
+    (``bounds`` [R, 8], each row's pose and speed), and per setting whether it is a union of
+    rows (bounds given as rows [M, 8]) and how many."""
+
+    poses: list[Pose]
+    v_starts: np.ndarray
+    bounds: np.ndarray
+    unions: list[bool]
+    counts: list[int]
+
+    @classmethod
+    def of(
+        cls, poses: Sequence[Pose], v_starts: Sequence[float], bounds: Sequence[np.ndarray]
+    ) -> SettingRows:
+        rows = [np.asarray(b, dtype=np.float64) for b in bounds]
+        counts = [1 if r.ndim == 1 else len(r) for r in rows]
+        return cls(
+            poses=[pose for pose, c in zip(poses, counts, strict=True) for _ in range(c)],
+            v_starts=np.array([v for v, c in zip(v_starts, counts, strict=True) for _ in range(c)]),
+            bounds=np.concatenate([r.reshape(-1, 8) for r in rows]),
+            unions=[r.ndim != 1 for r in rows],
+            counts=counts,
+        )
+
+    def sweeps(self, engine: FRTEngine) -> np.ndarray:
+        """Every row's outer bound's sweep boxes [R, steps, 4] (``outer_boxes``: compiled, free
+        of the GIL, so another thread may run it)."""
+        return outer_boxes(
+            self.v_starts, self.bounds, engine.horizon, engine.outer_steps, 8, engine.initial_set
+        )
+
+    def sets(self, engine: FRTEngine, sweeps: np.ndarray) -> list[FRTSet]:
+        """Each setting's conservative set from its rows' ``sweeps``."""
+        tubes = box_tubes_of(engine, self.poses, sweeps)
+        out: list[FRTSet] = []
+        start = 0
+        for union, c in zip(self.unions, self.counts, strict=True):
+            members = tubes[start : start + c]
+            out.append(UnionSet(members) if union else members[0])
+            start += c
+        return out
+
+
 def conservative_sets(
     engine: FRTEngine,
     poses: Sequence[Pose],
@@ -111,15 +158,5 @@ def conservative_sets(
     """The conservative set of each setting: for one row of bounds [8] its box tube
     (``FRTEngine.conservative``), for rows [M, 8] the union of theirs (:func:`conservative_union`);
     the outer bounds of every row of every setting propagated together (``reach.box_tubes``)."""
-    rows = [np.asarray(b, dtype=np.float64) for b in bounds]
-    counts = [1 if r.ndim == 1 else len(r) for r in rows]
-    flat_poses = [pose for pose, c in zip(poses, counts, strict=True) for _ in range(c)]
-    flat_v = [float(v) for v, c in zip(v_starts, counts, strict=True) for _ in range(c)]
-    tubes = box_tubes(engine, flat_poses, flat_v, np.concatenate([r.reshape(-1, 8) for r in rows]))
-    out: list[FRTSet] = []
-    start = 0
-    for r, c in zip(rows, counts, strict=True):
-        members = tubes[start : start + c]
-        out.append(members[0] if r.ndim == 1 else UnionSet(members))
-        start += c
-    return out
+    rows = SettingRows.of(poses, v_starts, bounds)
+    return rows.sets(engine, rows.sweeps(engine))

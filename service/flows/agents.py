@@ -15,7 +15,8 @@ misses move the gamma the new version's bounds are fitted with (``service.flows.
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Sequence
+import logging
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -33,8 +34,8 @@ from service.flows.next_state import (
     observed_predictions,
     resolve_class,
 )
-from service.runtime.audit import Scored, ServedVersion
-from service.runtime.conservative import cached_conservative
+from service.runtime.audit import Scored, ServedVersion, count_audited_many, score_many
+from service.runtime.conservative import cached_conservative, start_conservative
 from service.runtime.jobs import FRTJob
 from service.runtime.scheduler import FRTKey
 from service.runtime.services import Services
@@ -50,6 +51,8 @@ from service.wire.schemas import (
     ObservationRequest,
     ObservationResponse,
 )
+
+log = logging.getLogger("frt.services")
 
 
 def belief_out(belief: Belief) -> tuple[BeliefOut, BeliefOut]:
@@ -138,8 +141,13 @@ async def observe_many(
             (entry.agent_id, _apply(services, entry, result[0]), entry.request.timestamp)
         )
         stored_entries.append(entry)
+    # The new versions' conservative sets are under way while they are stored (a state
+    # rebuilt by the store's update gets its own below).
+    building = start_conservative(
+        services, [services.job_for(r[0]) for r in built if not isinstance(r, APIError)]
+    )  # type: ignore[index]
     stored = await services.store.update_many(updates)
-    _submitted(services, stored_entries, stored, results)
+    _submitted(services, stored_entries, stored, results, building)
     return results  # type: ignore[return-value]
 
 
@@ -209,9 +217,11 @@ def _submitted(
     entries: list[_Entry],
     stored: list[AgentState | APIError],
     results: list[Applied | APIError | None],
+    building: Callable[[], list[FRTSet]],
 ) -> None:
-    """The stored versions' exact sets submitted, their conservative sets built (checks finding
-    the exact set late look them up; the audit keeps them) and recorded for the audit."""
+    """The stored versions' exact sets submitted, their conservative sets built (``building``
+    finishes those of the states first built; checks finding the exact set late look them up;
+    the audit keeps them) and recorded for the audit."""
     applied = []
     for entry, state in zip(entries, stored, strict=True):
         if isinstance(state, APIError):
@@ -220,6 +230,7 @@ def _submitted(
         applied.append((entry, state, services.job_for(state)))
     for _, _, job in applied:
         services.submit(job)
+    building()
     conservative = cached_conservative(services, [job for _, _, job in applied])
     later = []
     for (entry, state, job), frt in zip(applied, conservative, strict=True):
@@ -311,9 +322,19 @@ def _record_for_audit(
 
 
 def _audit_later(services: Services, positions: list[tuple[str, float, float, float]]) -> None:
-    """Score and count each (agent, x, y, t) (``Services.audit_later``)."""
-    for agent_id, x, y, t in positions:
-        services.audit_later(agent_id, x, y, t)
+    """Score each (agent, x, y, t) against the agent's versions covering t, all together
+    (``score_many``), and count them (``Services.audit_later`` of each)."""
+    try:
+        versions = [services.audit.covering(agent_id, t) for agent_id, _, _, t in positions]
+        scored = score_many(
+            [(x, y, t, v) for (_, x, y, t), v in zip(positions, versions, strict=True)],
+            services.scheduler.lookup,
+        )
+    except Exception as exc:  # a measurement: it must never take the service down
+        log.error("coverage audit failed", extra={"error": repr(exc)})
+        return
+    audited = [(a, s, t) for (a, _, _, t), s in zip(positions, scored, strict=True)]
+    count_audited_many(services.metrics, services.audit, services.coverage, audited)
 
 
 def adapt_gamma(prior: AgentState | None, scored: list[Scored], config: AgentConfig) -> float:

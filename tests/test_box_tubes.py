@@ -50,10 +50,28 @@ def test_outer_boxes_are_each_settings_sweeps_bit_for_bit() -> None:
         assert np.array_equal(outer_boxes(v[i : i + 1], bounds[i : i + 1], 3.0, 120, 8)[0], alone)
 
 
-def test_box_tubes_are_the_engines_conservative_sets_bit_for_bit() -> None:
+def test_box_tubes_are_each_outer_bounds_windows_bit_for_bit() -> None:
+    """Each setting's box tube, built with the others, is its own outer bound's sweeps merged
+    four at a time, tube j holding the boxes up to s_j + slice_dt / 2; the engine's conservative
+    set is the same."""
     engine = FRTEngine()
     poses, v, bounds = _settings(30, 2)
+    k, n = engine.outer_steps_per_slice, engine.outer_steps
+    upto = [-(-min(j * k + (k + 1) // 2, n) // 4) for j in range(engine.n_slices)]
     for got, i in zip(box_tubes(engine, poses, v, bounds), range(len(v)), strict=True):
+        sweep = outer_bound(v[i], bounds[i], engine.horizon, n, 8, support_directions=0).sweep
+        windows = sweep.reshape(-1, 4, 4)  # 120 sweeps: 30 windows of 4
+        boxes = np.stack(
+            [
+                windows[:, :, 0].min(axis=1),
+                windows[:, :, 1].max(axis=1),
+                windows[:, :, 2].min(axis=1),
+                windows[:, :, 3].max(axis=1),
+            ],
+            axis=1,
+        )
+        assert np.array_equal(got.boxes, boxes) and got.pose == poses[i]
+        assert got.boxes_until.tolist() == upto
         assert _same(got, engine.conservative(poses[i], v[i], bounds[i]))
 
 

@@ -331,3 +331,45 @@ def test_a_state_written_between_the_frames_read_and_its_update_is_built_from(
     assert got.frt_version == 3
     got.agent_id = want.agent_id
     assert got == want
+
+
+def test_agents_refused_by_the_flow_are_answered_in_place_and_keep_their_state(
+    wide: TestClient,
+) -> None:
+    """Within one frame, refused by the flow: a class change (409), a speed outside the class's
+    range and one invalid mode of a mixture (422s naming the field), a stale timestamp (409);
+    the others of the frame are applied as one by one."""
+    rng = np.random.default_rng(8)
+    first = [_kind_entry(rng, kind, 0, first=True) for kind in (0, 3, 0, 1, 0)]
+    ids = ["rj-ok", "rj-class", "rj-speed", "rj-mode", "rj-stale"]
+    agents = [{"agent_id": a, **b} for a, b in zip(ids, first, strict=True)]
+    assert (
+        wide.post("/v1/frames", json={"timestamp": 1.0, "agents": agents}).json()["rejected"] == 0
+    )
+    late = {"agent_id": "rj-stale", **_kind_entry(rng, 0, 1, first=False)}
+    assert (
+        wide.post("/v1/frames", json={"timestamp": 3.0, "agents": [late]}).json()["rejected"] == 0
+    )
+    view = "/v1/agents/{}?wait_frt_ms=10000"  # the version's exact set ready: one view of it
+    before = {a: wide.get(view.format(a)).json() for a in ids}
+    bodies = [_kind_entry(rng, kind, 1, first=False) for kind in (0, 3, 0, 1, 0)]
+    bodies[1]["agent_class"] = "car"  # a pedestrian until now
+    bodies[2]["state"]["speed"] = 500.0
+    bodies[3]["prediction"]["modes"][1]["cov"][0] = [[1.0, 0.0], [0.0, -1.0]]
+    frame = [{"agent_id": a, **b} for a, b in zip(ids, bodies, strict=True)]
+    out = wide.post("/v1/frames", json={"timestamp": 2.0, "agents": frame}).json()
+    assert out["applied"] == 1 and out["rejected"] == 4
+    errors = {r["agent_id"]: r["error"] for r in out["results"][1:]}
+    assert errors["rj-class"]["status"] == 409 and "pedestrian" in errors["rj-class"]["detail"]
+    assert (errors["rj-speed"]["status"], errors["rj-speed"]["field"]) == (
+        422,
+        "agents.2.state.speed",
+    )
+    assert errors["rj-mode"]["status"] == 422
+    assert errors["rj-mode"]["field"] == "agents.3.prediction.modes.1.cov.0"
+    assert errors["rj-stale"]["status"] == 409
+    for a in ids[1:]:
+        assert wide.get(view.format(a)).json() == before[a]  # nothing of it changed
+    wide.post("/v1/agents/rj-ok-alone/observations", json={"timestamp": 1.0, **first[0]})
+    one = wide.post("/v1/agents/rj-ok-alone/observations", json={"timestamp": 2.0, **bodies[0]})
+    _same_but_the_id(out["results"][0], one.json())

@@ -13,8 +13,8 @@ tests/test_scale_out.py starts them). Three scenes of four agents each send one 
 with their scene's header. After ``STEADY_S`` the replica of the first scene gets SIGKILL. The test
 asserts that each scene is answered by one replica (the ``X-FRT-Replica`` of every answer) and no
 set was computed twice (no ``read`` set on any replica before the kill); that the killed replica's
-scenes are answered by one survivor each from the first request they start once the kill is
-seen (the next frame), its other scenes staying where they were; that no observation was lost or repeated (every agent's
+scenes are answered by one survivor each from the next request after at most one frame period's
+failed requests, its other scenes staying where they were; that no observation was lost or repeated (every agent's
 version, timestamp and beta are the driver's own count and filter, every answer carried them);
 and that every error was a request in flight to the killed replica. It prints the figures.
 """
@@ -534,13 +534,16 @@ def test_each_scene_goes_to_one_replica_and_survives_its_death(
         if scene not in moved:
             assert set(after) == {homes[scene]}, f"{scene} moved: {after}"
             continue
-        # In frames, not seconds (a shared machine's timings are figures, printed above): the
-        # first request the scene started once it had seen the kill was answered by a survivor.
+        # In requests, not seconds (a shared machine's timings are figures, printed above): at
+        # most the frame and the check of one period failed (in flight to the dead replica, or
+        # sent on nginx's kept-alive connection to it), and the scene's next request after them
+        # was answered by a survivor.
         seen, _, _ = failover(driver, events, scene)
-        first = min(
-            (r for r in driver.records if r.scene == scene and r.start >= seen),
-            key=lambda r: r.start,
-        )
+        mine = [r for r in driver.records if r.scene == scene and r.end >= events.kill_at]
+        failed = [r for r in mine if r.status is None or r.status >= 500]
+        assert len(failed) <= 2, (scene, failed)
+        after = max([seen, *(r.end for r in failed)])
+        first = min((r for r in mine if r.start >= after), key=lambda r: r.start)
         assert first.status == 200 and first.replica not in (None, events.victim), (scene, first)
     rebuilt = sum(c["read"] for c in events.after.values())
     assert rebuilt <= len(moved) * AGENTS_PER_SCENE, events.after

@@ -65,7 +65,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -86,27 +86,17 @@ def free_port() -> int:
 
 
 @contextmanager
-def running_service(model: Path, **settings: str):
+def service_at(root: Path, model: Path, **settings: str) -> Iterator[tuple[str, int]]:
+    """The service of the tree at ``root`` on a free loopback port, ready: (url, pid). The
+    settings are ``FRT_*`` variables beside the caller's environment."""
     port = free_port()
     env = dict(os.environ, FRT_MODEL_PATH=str(model), FRT_LOG_REQUESTS="false")
     env.update({f"FRT_{k.upper()}": v for k, v in settings.items()})
-    proc = subprocess.Popen(
-        [
-            sys.executable,
-            "-m",
-            "uvicorn",
-            "service.api.app:app",
-            "--port",
-            str(port),
-            "--log-level",
-            "warning",
-        ],
-        cwd=ROOT,
-        env=env,
-    )
+    command = [sys.executable, "-m", "uvicorn", "service.api.app:app", "--port", str(port)]
+    proc = subprocess.Popen([*command, "--log-level", "warning"], cwd=root, env=env)
     url = f"http://127.0.0.1:{port}"
     try:
-        deadline = time.monotonic() + 60
+        deadline = time.monotonic() + 90
         while time.monotonic() < deadline:
             try:
                 if httpx.get(f"{url}/readyz", timeout=1).status_code == 200:
@@ -115,11 +105,18 @@ def running_service(model: Path, **settings: str):
                 pass
             time.sleep(0.2)
         else:
-            raise RuntimeError("service did not become ready")
-        yield url
+            raise RuntimeError(f"the service at {root} did not become ready")
+        yield url, proc.pid
     finally:
         proc.terminate()
         proc.wait(timeout=10)
+
+
+@contextmanager
+def running_service(model: Path, **settings: str) -> Iterator[str]:
+    """This tree's service (:func:`service_at`): its url."""
+    with service_at(ROOT, model, **settings) as (url, _):
+        yield url
 
 
 def prediction(rng: np.random.Generator, steps: int = 6, steering_var: float = 0.01) -> dict:

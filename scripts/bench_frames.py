@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import shutil
 import signal
 import subprocess
@@ -46,7 +45,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from scripts.bench import free_port, server_seconds, stats  # noqa: E402
+from scripts.bench import server_seconds, service_at, stats  # noqa: E402
 
 #: The predictor's steps (experiments/predictor.py: 0.5 s steps over the 3 s horizon) and its
 #: first-step standard deviations, growing by ``SD_GROWTH`` per step.
@@ -177,32 +176,6 @@ class Scene:
             action = None if previous is None else agent.advance(previous, t)
             out.append((agent.agent_id, agent.entry(t, action)))
         return out
-
-
-@contextmanager
-def service_at(root: Path, model: Path, **settings: str) -> Iterator[tuple[str, int]]:
-    """The service of the tree at ``root`` on a free loopback port: (url, pid)."""
-    port = free_port()
-    env = dict(os.environ, FRT_MODEL_PATH=str(model), FRT_LOG_REQUESTS="false")
-    env.update({f"FRT_{k.upper()}": v for k, v in settings.items()})
-    command = [sys.executable, "-m", "uvicorn", "service.api.app:app", "--port", str(port)]
-    proc = subprocess.Popen([*command, "--log-level", "warning"], cwd=root, env=env)
-    url = f"http://127.0.0.1:{port}"
-    try:
-        deadline = time.monotonic() + 90
-        while time.monotonic() < deadline:
-            try:
-                if httpx.get(f"{url}/readyz", timeout=1).status_code == 200:
-                    break
-            except httpx.HTTPError:
-                pass
-            time.sleep(0.2)
-        else:
-            raise RuntimeError(f"the service at {root} did not become ready")
-        yield url, proc.pid
-    finally:
-        proc.terminate()
-        proc.wait(timeout=10)
 
 
 @contextmanager

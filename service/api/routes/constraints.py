@@ -7,7 +7,13 @@ from typing import Annotated
 from fastapi import APIRouter, Query
 
 from reach.constraints import DEFAULT_PIECES, DEFAULT_SIDES, PIECES_RANGE, SIDES_RANGE
-from service.api.routes.params import AgentIdPath, ServicesDep, joined
+from service.api.routes.params import (
+    AgentIdPath,
+    CollisionRadiusQuery,
+    ServicesDep,
+    SlicesQuery,
+    joined,
+)
 from service.flows import constraints
 from service.wire.schemas import ConstraintsResponse
 
@@ -18,19 +24,14 @@ router = APIRouter(prefix="/v1", tags=["frt"])
 async def agent_constraints(
     agent_id: AgentIdPath,
     services: ServicesDep,
-    slices: Annotated[
-        list[str] | None,
-        Query(description="comma-separated seconds after the observation (repeats add to it)"),
-    ] = None,
+    slices: SlicesQuery = None,
     max_sides: Annotated[
         int, Query(ge=SIDES_RANGE[0], le=SIDES_RANGE[1], description="sides of a piece at most")
     ] = DEFAULT_SIDES,
     max_pieces: Annotated[
         int, Query(ge=PIECES_RANGE[0], le=PIECES_RANGE[1], description="pieces per time at most")
     ] = DEFAULT_PIECES,
-    collision_radius: Annotated[
-        float | None, Query(ge=0.0, le=100.0, description="default: the agent's R_col")
-    ] = None,
+    collision_radius: CollisionRadiusQuery = None,
 ) -> ConstraintsResponse:
     """Per requested time, convex pieces {x : A x <= b} in the world frame whose union contains C."""
     query = constraints.parse_query(

@@ -6,7 +6,13 @@ from typing import Annotated
 
 from fastapi import APIRouter, Query
 
-from service.api.routes.params import AgentIdPath, ServicesDep, joined
+from service.api.routes.params import (
+    AgentIdPath,
+    CollisionRadiusQuery,
+    ServicesDep,
+    SlicesQuery,
+    joined,
+)
 from service.flows import contours
 from service.wire.schemas import ContoursResponse
 
@@ -17,17 +23,12 @@ router = APIRouter(prefix="/v1", tags=["frt"])
 async def agent_contours(
     agent_id: AgentIdPath,
     services: ServicesDep,
-    slices: Annotated[
-        list[str] | None,
-        Query(description="comma-separated seconds after the observation (repeats add to it)"),
-    ] = None,
+    slices: SlicesQuery = None,
     include: Annotated[
         list[str] | None, Query(description="comma-separated subset of K,C (default: both)")
     ] = None,
     tube: Annotated[bool, Query(description="include the whole-horizon tube")] = True,
-    collision_radius: Annotated[
-        float | None, Query(ge=0.0, le=100.0, description="default: the agent's R_col")
-    ] = None,
+    collision_radius: CollisionRadiusQuery = None,
 ) -> ContoursResponse:
     """The whole-horizon tube and the requested time slices, in the world frame."""
     query = contours.parse_query(

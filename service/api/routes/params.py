@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import Depends, Path
+from fastapi import Depends, Path, Query
 from fastapi.routing import APIRoute
 from starlette.requests import HTTPConnection, Request
 
@@ -28,6 +28,15 @@ async def services_dependency(conn: HTTPConnection) -> Services:
 
 
 ServicesDep = Annotated[Services, Depends(services_dependency)]
+
+#: ``slices``: seconds after the observation, comma-separated (joined with :func:`joined`).
+SlicesQuery = Annotated[
+    list[str] | None,
+    Query(description="comma-separated seconds after the observation (repeats add to it)"),
+]
+CollisionRadiusQuery = Annotated[
+    float | None, Query(ge=0.0, le=100.0, description="default: the agent's R_col")
+]
 
 
 def _declared_query_parameters(route: APIRoute) -> frozenset[str]:

@@ -179,16 +179,12 @@ class Cluster:
     nginx: Nginx
 
 
-@pytest.fixture
-def cluster(tmp_path: Path) -> Iterator[Cluster]:
-    require_commands("redis-server", "nginx")
-    model = write_model(tmp_path / "model")
-    redis = RedisServer(tmp_path / "redis", appendonly=True)
-    redis.directory.mkdir()
-    redis.start()
+def replica_env(store_url: str, model: Path) -> dict[str, str]:
+    """A replica's environment: the caller's without its ``FRT_*``, the shared store, the model,
+    the beta filter's settings, one worker, quiet logs."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("FRT_")}
     env.update(
-        FRT_STORE_URL=redis.url,
+        FRT_STORE_URL=store_url,
         FRT_MODEL_PATH=str(model),
         FRT_BETA_LOW=str(BETA_LOW),
         FRT_EPSILON=str(EPSILON),
@@ -196,6 +192,17 @@ def cluster(tmp_path: Path) -> Iterator[Cluster]:
         FRT_LOG_REQUESTS="false",
         FRT_LOG_LEVEL="WARNING",
     )
+    return env
+
+
+@pytest.fixture
+def cluster(tmp_path: Path) -> Iterator[Cluster]:
+    require_commands("redis-server", "nginx")
+    model = write_model(tmp_path / "model")
+    redis = RedisServer(tmp_path / "redis", appendonly=True)
+    redis.directory.mkdir()
+    redis.start()
+    env = replica_env(redis.url, model)
     replicas: list[Replica] = []
     nginx: Nginx | None = None
     try:

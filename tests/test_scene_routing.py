@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import asyncio
 import math
-import os
 import random
 import re
 import shutil
@@ -46,15 +45,21 @@ from service.flows.confidence import Belief, hypotheses, prior_belief, update_be
 from service.runtime.settings import Settings
 from tests.fixtures.analytic_model import write_model
 from tests.test_redis_store import RedisServer, require_commands
-from tests.test_scale_out import Nginx, Replica, percentile, read_access_log
+from tests.test_scale_out import (
+    BETA_LOW,
+    EPSILON,
+    Nginx,
+    Replica,
+    percentile,
+    read_access_log,
+    replica_env,
+)
 
 SCENES = ("scene-a", "scene-b", "scene-c")
 AGENTS_PER_SCENE = 4
 PERIOD_S = 0.1  # one frame per scene per period (10 Hz), then one check of the scene's agents
 STEADY_S = 6.0  # before the kill
 AFTER_KILL_S = 6.0
-BETA_LOW = 0.03
-EPSILON = 0.05
 CHECK_DEADLINE_MS = 50.0
 _EXACT_SETS = re.compile(r'^frt_exact_sets_total\{origin="(\w+)"\} (\S+)$', re.MULTILINE)
 
@@ -165,16 +170,7 @@ def cluster(tmp_path: Path) -> Iterator[Cluster]:
     redis = RedisServer(tmp_path / "redis")
     redis.directory.mkdir()
     redis.start()
-    env = {k: v for k, v in os.environ.items() if not k.startswith("FRT_")}
-    env.update(
-        FRT_STORE_URL=redis.url,
-        FRT_MODEL_PATH=str(model),
-        FRT_BETA_LOW=str(BETA_LOW),
-        FRT_EPSILON=str(EPSILON),
-        FRT_FRT_WORKERS="1",
-        FRT_LOG_REQUESTS="false",
-        FRT_LOG_LEVEL="WARNING",
-    )
+    env = replica_env(redis.url, model)
     replicas: dict[str, Replica] = {}
     nginx: Nginx | None = None
     try:

@@ -116,28 +116,28 @@ def trajectory_surrogates_of(
     """Per set, surrogates of its :meth:`FRTSet.clearance` values (``reach.packed_rings``): the
     same least value and first value below the set's threshold per trajectory, the signed
     distances computed only where those need them (with ``every_point``, every one of them, by
-    the same kernel)."""
-    xy_world = np.asarray(xy_world, dtype=float).reshape(-1, 2)
-    if not sets:
-        return []
+    the same kernel). The kernels move the world points into each set's human frame by the
+    arithmetic of ``reach.frames.human_frames``."""
+    xy_world = np.ascontiguousarray(np.asarray(xy_world, dtype=np.float64).reshape(-1, 2))
     n = xy_world.shape[0]
-    x, y = human_frames(xy_world, [s.pose for s in sets])
     out = []
     for a, (frt, t) in enumerate(zip(sets, t_rel, strict=True)):
         index = np.full(n, frt.n_slices - 1) if t is None else frt.tube_indices(t)
         tubes, which = frt.tubes_present(index)
         packed = frt.packed_tubes(tuple(tubes.tolist()))
+        pose = (frt.pose.x, frt.pose.y, frt.pose.heading)
         if reduction.every_point:
-            out.append(signed_distances_packed(packed, which, np.stack([x[a], y[a]], axis=1)))
+            out.append(signed_distances_packed(packed, which, xy_world, pose))
             continue
         out.append(
             trajectory_surrogates(
                 packed,
                 which,
-                np.stack([x[a], y[a]], axis=1),
+                xy_world,
                 reduction.starts,
                 reduction.thresholds[a],
                 reduction.group,
+                pose,
             )
         )
     return out

@@ -3,22 +3,39 @@
 A polygon (or a multipolygon, with holes) is packed as the segments of its rings; the signed
 distance of a point is the least distance to a segment, negative where a ray from the point
 crosses the rings an odd number of times (inside): the same quantity as
-``reach.distances.signed_distance`` (GEOS), computed without a geometry object per point.
+``reach.distances.signed_distance`` (GEOS), computed without a geometry object per point. The
+kernels take world points and the human's pose and move each point to the human frame by the
+arithmetic of ``reach.frames.human_frames`` (the same products and sums in the same order: the same
+values).
+
+Two lower bounds of the signed distance d(p) to a polygon K cost a few operations each:
+
+- the *box bound*, the signed distance to K's bounding box (K lies in its box: outside, the box is
+  nearer; inside, p is at most as deep in K as in the box);
+- the *support bound* max_n (n . p - h(n)) over the unit vectors n of :data:`SUPPORT_DIRECTIONS`
+  directions, h(n) = max over K's vertices of n . q. Every q in K has n . q <= h(n). Outside K,
+  d(p) = |p - q*| for the nearest q* in K, and |p - q*| >= n . (p - q*) >= n . p - h(n). Inside,
+  moving from p along n by h(n) - n . p + e (any e > 0) reaches n . x > h(n), outside K, so the
+  boundary is within h(n) - n . p of p and d(p) >= n . p - h(n). Both sides of the inequality are
+  widened by a margin far above their rounding (:data:`SUPPORT_MARGIN`).
 
 A batch check needs per trajectory only its least clearance and its first colliding point, not
 every point's distance. :func:`trajectory_surrogates` returns per point a *surrogate* s_i: the
-exact signed distance d_i where it evaluated it, else a lower bound of it, the signed distance to
-the polygon's bounding box (the polygon lies in its box: outside, the box is nearer; inside, the
-point is at most as deep in the polygon as in the box). It evaluates points in increasing order of
-their bound until the next bound is no less than the least distance found, so every point left
-has d_i >= s_i >= min_j d_j: ``min s = min d``; and, in order, every point whose bound is below
-the threshold until the first whose distance is, so the first s_i below the threshold is the first
-d_i below it. Reductions of s by minimum and by first index below the threshold are therefore
-those of d.
+exact d_i where it evaluated it, else a lower bound of it (the larger of the two bounds where it
+took the support bound, else the box bound). Per trajectory it evaluates the point of least box
+bound, then visits the points in order: a point whose bound is below the least distance found so
+far takes its support bound and is evaluated if that is still below it. The least distance found
+only decreases, so every point left has d_i >= s_i >= min_j d_j: ``min s = min d``. If that is
+below the threshold it visits the points in order again: a point whose value is below the
+threshold takes its support bound and is evaluated if that is still below, until the first whose
+distance is; every point before it has s_i >= threshold (a bound, so d_i too) or s_i = d_i, so
+the first s_i below the threshold is the first d_i below it. Reductions of s by minimum and by
+first index below the threshold are therefore those of d.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numba
@@ -29,6 +46,16 @@ from shapely.geometry.base import BaseGeometry
 
 #: Segments per chunk: a chunk's bounding box lets a point skip its segments together.
 CHUNK = 8
+#: Directions of the support bound (see the module docstring), evenly spaced.
+SUPPORT_DIRECTIONS = 16
+#: The support bound's margin per metre of coordinate magnitude (and per polygon, at least this):
+#: far above the rounding of a dot product, far below a distance a check reports.
+SUPPORT_MARGIN = 1e-9
+_ANGLES = 2.0 * np.pi * np.arange(SUPPORT_DIRECTIONS) / SUPPORT_DIRECTIONS
+#: The unit vectors n of the support bound ``[SUPPORT_DIRECTIONS, 2]``.
+DIRECTIONS = np.ascontiguousarray(np.stack([np.cos(_ANGLES), np.sin(_ANGLES)], axis=1))
+#: No change of frame: points already in the polygons' frame.
+IDENTITY = (0.0, 0.0, 0.0)
 
 
 @dataclass(frozen=True)
@@ -37,18 +64,21 @@ class PackedRings:
     :data:`CHUNK` consecutive segments of one polygon with their bounding boxes ``[C, 4]`` (x_lo,
     y_lo, x_hi, y_hi); polygon g's chunks are ``chunk_starts[g]:chunk_starts[g + 1]``, chunk c's
     segments ``segment_starts[c]:segment_starts[c + 1]``; ``boxes[g]`` polygon g's bounding
-    box."""
+    box, ``supports[g]`` its support values h(n) along :data:`DIRECTIONS`, widened by the margin
+    (``-inf`` for an empty polygon)."""
 
     segments: np.ndarray
     segment_starts: np.ndarray
     chunk_boxes: np.ndarray
     chunk_starts: np.ndarray
     boxes: np.ndarray
+    supports: np.ndarray
 
 
 def pack_rings(geometries: list[BaseGeometry]) -> PackedRings:
-    """The ring segments and bounding boxes of ``geometries`` (polygons or multipolygons; an
-    empty one has no segments and an empty box, every point infinitely far from it)."""
+    """The ring segments, bounding boxes and support values of ``geometries`` (polygons or
+    multipolygons; an empty one has no segments and an empty box, every point infinitely far from
+    it)."""
     array = np.empty(len(geometries), dtype=object)
     array[:] = geometries
     parts, part_of = shapely.get_parts(array, return_index=True)
@@ -78,7 +108,20 @@ def pack_rings(geometries: list[BaseGeometry]) -> PackedRings:
         chunk_boxes=chunk_boxes,
         chunk_starts=chunk_starts,
         boxes=np.ascontiguousarray(bounds, dtype=np.float64),
+        supports=_supports(segments, owner, len(geometries)),
     )
+
+
+def _supports(segments: np.ndarray, owner: np.ndarray, count: int) -> np.ndarray:
+    """Per polygon, max over its segments' first vertices (every vertex of a closed ring) of
+    n . q along :data:`DIRECTIONS`, plus the margin for its largest coordinate."""
+    out = np.full((count, SUPPORT_DIRECTIONS), -np.inf)
+    if len(segments):
+        np.maximum.at(out, owner, segments[:, :2] @ DIRECTIONS.T)
+        scale = np.zeros(count)
+        np.maximum.at(scale, owner, np.abs(segments[:, :2]).max(axis=1))
+        out += (SUPPORT_MARGIN * (1.0 + scale))[:, None]
+    return np.ascontiguousarray(out)
 
 
 def _chunk_boxes(segments: np.ndarray, segment_starts: np.ndarray) -> np.ndarray:
@@ -98,10 +141,17 @@ def _chunk_boxes(segments: np.ndarray, segment_starts: np.ndarray) -> np.ndarray
     )
 
 
-def signed_distances_packed(packed: PackedRings, which: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """Signed distance of each point ``xy[i]`` to polygon ``which[i]`` of ``packed``."""
+def signed_distances_packed(
+    packed: PackedRings,
+    which: np.ndarray,
+    xy: np.ndarray,
+    pose: tuple[float, float, float] = IDENTITY,
+) -> np.ndarray:
+    """Signed distance of each point ``xy[i]`` to polygon ``which[i]`` of ``packed``, the points
+    moved first into the frame of ``pose`` (x, y, heading; see :func:`frame`)."""
     out = np.empty(len(xy), dtype=np.float64)
-    _all_signed(*_arrays(packed), *_points(xy), np.asarray(which, dtype=np.int64), out)
+    xs, ys = _points(xy)
+    _all_signed(*_arrays(packed), *frame(pose), xs, ys, np.asarray(which, dtype=np.int64), out)
     return out
 
 
@@ -112,19 +162,22 @@ def trajectory_surrogates(
     starts: np.ndarray,
     threshold: float,
     group: int = 1,
+    pose: tuple[float, float, float] = IDENTITY,
 ) -> np.ndarray:
     """Per probe, its signed distance to polygon ``which[i]`` or a lower bound of it, such that per
     trajectory the least value and the first point whose value is below ``threshold`` are those of
     the signed distances (see the module docstring). A point is ``group`` consecutive probes (a
     footprint's discs) and its value their least; trajectory k is the points
-    ``starts[k]:starts[k + 1]``."""
+    ``starts[k]:starts[k + 1]``; the probes are moved first into the frame of ``pose``."""
     out = np.empty(len(xy), dtype=np.float64)
     begins = np.asarray(starts, dtype=np.int64)
     ends = np.append(begins[1:], len(xy) // group)
+    xs, ys = _points(xy)
     _surrogates(
-        *_arrays(packed),
-        packed.boxes,
-        *_points(xy),
+        (*_arrays(packed), packed.boxes, packed.supports, DIRECTIONS),
+        *frame(pose),
+        xs,
+        ys,
         np.asarray(which, dtype=np.int64),
         (begins, ends, group),
         float(threshold),
@@ -133,13 +186,21 @@ def trajectory_surrogates(
     return out
 
 
+def frame(pose: tuple[float, float, float]) -> tuple[float, float, float, float]:
+    """(x, y, cos, sin) of a pose (x, y, heading), the cosine and sine as
+    ``reach.frames.human_frames`` takes them."""
+    x, y, heading = pose
+    return float(x), float(y), math.cos(heading), math.sin(heading)
+
+
 def compile_ring_kernels() -> None:
     """Compile (or load from numba's cache) the kernels before a check needs them (the first
     compilation after a change takes seconds)."""
     packed = pack_rings([box(0.0, 0.0, 1.0, 1.0)])
     xy = np.array([[0.5, 0.5], [2.0, 0.5]])
     signed_distances_packed(packed, np.zeros(2, dtype=np.int64), xy)
-    trajectory_surrogates(packed, np.zeros(2, dtype=np.int64), xy, np.array([0]), 0.0)
+    for group in (1, 2):
+        trajectory_surrogates(packed, np.zeros(2, dtype=np.int64), xy, np.array([0]), 0.0, group)
 
 
 def _arrays(packed: PackedRings) -> tuple[np.ndarray, ...]:
@@ -151,6 +212,15 @@ def _points(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         np.ascontiguousarray(xy[:, 0], dtype=np.float64),
         np.ascontiguousarray(xy[:, 1], dtype=np.float64),
     )
+
+
+@numba.njit(cache=True, inline="always")
+def _to_frame(x0, y0, c, s, x, y):
+    """(x, y) in the frame at (x0, y0) with heading cosine c and sine s, by the products and sums
+    of ``reach.frames.human_frames`` in its order."""
+    dx = x - x0
+    dy = y - y0
+    return c * dx + s * dy, -s * dx + c * dy
 
 
 @numba.njit(cache=True)
@@ -206,7 +276,7 @@ def _segment_distance2(segments, e, x, y):
     return ex * ex + ey * ey
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _box_bound(box, x, y):
     """Signed distance to the box: a lower bound of the signed distance to a polygon inside it."""
     if not box[0] <= box[2]:
@@ -218,24 +288,31 @@ def _box_bound(box, x, y):
     return np.sqrt(max(dx, 0.0) ** 2 + max(dy, 0.0) ** 2)
 
 
+@numba.njit(cache=True, inline="always")
+def _support_bound(supports, directions, g, x, y):
+    """max_n (n . p - h(n)) less the margin: a lower bound of the signed distance to polygon g
+    (+inf for an empty one, whose support values are -inf)."""
+    best = -np.inf
+    for k in range(directions.shape[0]):
+        best = max(best, directions[k, 0] * x + directions[k, 1] * y - supports[g, k])
+    return best - SUPPORT_MARGIN * (1.0 + abs(x) + abs(y))
+
+
 @numba.njit(cache=True)
-def _all_signed(segments, segment_starts, chunk_boxes, chunk_starts, xs, ys, which, out):
+def _all_signed(
+    segments, segment_starts, chunk_boxes, chunk_starts, x0, y0, c, s, xs, ys, which, out
+):
     for i in range(len(xs)):
-        out[i] = _signed(
-            segments, segment_starts, chunk_boxes, chunk_starts, which[i], xs[i], ys[i]
-        )
-
-
-#: Trajectories up to this long find their next point by a scan, longer ones sort their bounds.
-SCAN_POINTS = 64
+        x, y = _to_frame(x0, y0, c, s, xs[i], ys[i])
+        out[i] = _signed(segments, segment_starts, chunk_boxes, chunk_starts, which[i], x, y)
 
 
 @numba.njit(cache=True, inline="always")
-def _evaluate(rings, xs, ys, which, group, p, out):
+def _evaluate(geometry, xs, ys, which, group, p, out):
     """Point p's value, the least signed distance of its probes, whose lower bounds are in
     ``out``: probes measured (into ``out``) in increasing order of their bounds until the next
     bound is no less than the least distance found (the rest keep their bounds)."""
-    segments, segment_starts, chunk_boxes, chunk_starts = rings
+    segments, segment_starts, chunk_boxes, chunk_starts = geometry[:4]
     first = p * group
     if group == 1:
         out[first] = _signed(
@@ -260,55 +337,81 @@ def _evaluate(rings, xs, ys, which, group, p, out):
 
 
 @numba.njit(cache=True, inline="always")
-def _least_by_bounds(rings, xs, ys, which, group, a, b, exact, value, out):
-    """The least value of points ``a:b`` whose lower bounds are in ``value``: points evaluated
-    (``exact``, ``value``, their probes' ``out``) in increasing order of their bounds until the
-    next bound is no less than the least value found."""
+def _refine(geometry, xs, ys, which, group, p, out):
+    """Point p's value with each probe's bound raised to its support bound where that is
+    larger."""
+    supports, directions = geometry[5], geometry[6]
     least = np.inf
-    order = np.argsort(value[a:b]) + a if b - a > SCAN_POINTS else np.empty(0, dtype=np.int64)
-    for r in range(b - a):
-        if len(order):
-            p = order[r]
-        else:  # the unevaluated point of least bound
-            p, bound = -1, np.inf
-            for j in range(a, b):
-                if not exact[j] and value[j] < bound:
-                    p, bound = j, value[j]
-            if p < 0:
-                break
+    for i in range(p * group, (p + 1) * group):
+        out[i] = max(out[i], _support_bound(supports, directions, which[i], xs[i], ys[i]))
+        least = min(least, out[i])
+    return least
+
+
+@numba.njit(cache=True, inline="always")
+def _box_bounds(geometry, xs, ys, which, group, a, b, value, out):
+    """The box bounds of points ``a:b`` (their probes' into ``out``, the points' into
+    ``value``); returns the point of least bound (-1 if every bound is infinite)."""
+    boxes = geometry[4]
+    first, first_bound = -1, np.inf
+    for p in range(a, b):
+        bound = np.inf
+        for i in range(p * group, (p + 1) * group):
+            out[i] = _box_bound(boxes[which[i]], xs[i], ys[i])
+            bound = min(bound, out[i])
+        value[p] = bound
+        if bound < first_bound:
+            first, first_bound = p, bound
+    return first
+
+
+@numba.njit(cache=True, inline="always")
+def _least(geometry, xs, ys, which, group, a, b, exact, value, out):
+    """The least value of points ``a:b`` (module docstring): the point of least box bound
+    evaluated, then, in order, each point whose bound is below the least value found refined
+    and, if still below, evaluated (``exact``, ``value``, their probes' ``out``)."""
+    first = _box_bounds(geometry, xs, ys, which, group, a, b, value, out)
+    exact[a:b] = False
+    if first < 0:
+        return np.inf
+    least = _evaluate(geometry, xs, ys, which, group, first, out)
+    value[first] = least
+    exact[first] = True
+    for p in range(a, b):
+        if exact[p] or value[p] >= least:
+            continue
+        value[p] = _refine(geometry, xs, ys, which, group, p, out)
         if value[p] >= least:
-            break
-        value[p] = _evaluate(rings, xs, ys, which, group, p, out)
+            continue
+        value[p] = _evaluate(geometry, xs, ys, which, group, p, out)
         exact[p] = True
         least = min(least, value[p])
     return least
 
 
 @numba.njit(cache=True)
-def _surrogates(
-    segments, segment_starts, chunk_boxes, chunk_starts, boxes, xs, ys, which, spans, threshold, out
-):
+def _surrogates(geometry, x0, y0, c, s, world_x, world_y, which, spans, threshold, out):
     begins, ends, group = spans
-    rings = (segments, segment_starts, chunk_boxes, chunk_starts)
+    xs = np.empty(len(world_x))
+    ys = np.empty(len(world_y))
+    for i in range(len(world_x)):
+        xs[i], ys[i] = _to_frame(x0, y0, c, s, world_x[i], world_y[i])
     points = len(xs) // group
     exact = np.zeros(points, dtype=np.bool_)
     value = np.empty(points, dtype=np.float64)
     for k in range(len(begins)):
         a, b = begins[k], ends[k]
-        for p in range(a, b):
-            bound = np.inf
-            for i in range(p * group, (p + 1) * group):
-                out[i] = _box_bound(boxes[which[i]], xs[i], ys[i])
-                bound = min(bound, out[i])
-            value[p] = bound
-        least = _least_by_bounds(rings, xs, ys, which, group, a, b, exact, value, out)
+        least = _least(geometry, xs, ys, which, group, a, b, exact, value, out)
         if least >= threshold:
             continue
         for p in range(a, b):
             if value[p] >= threshold:
                 continue
             if not exact[p]:
-                value[p] = _evaluate(rings, xs, ys, which, group, p, out)
+                value[p] = _refine(geometry, xs, ys, which, group, p, out)
+                if value[p] >= threshold:
+                    continue
+                value[p] = _evaluate(geometry, xs, ys, which, group, p, out)
                 exact[p] = True
             if value[p] < threshold:
                 break

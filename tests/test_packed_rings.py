@@ -18,8 +18,10 @@ from shapely.geometry import MultiPolygon, Polygon
 from shapely.geometry.base import BaseGeometry
 
 from reach.distances import signed_distance
+from reach.frames import Pose, human_frames
 from reach.packed_rings import (
     CHUNK,
+    DIRECTIONS,
     pack_rings,
     signed_distances_packed,
     trajectory_surrogates,
@@ -127,3 +129,44 @@ def test_a_point_on_the_boundary_is_at_distance_zero() -> None:
     ours = signed_distances_packed(packed, np.zeros(5, dtype=np.int64), xy)
     assert ours == pytest.approx([0.0, 0.0, 0.0, -2.0, 2.0])
     assert np.isinf(signed_distances_packed(packed, np.ones(1, dtype=np.int64), xy[:1])).all()
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    pose=st.tuples(st.floats(-50.0, 50.0), st.floats(-50.0, 50.0), st.floats(-4.0, 4.0)),
+)
+def test_world_points_are_moved_to_the_frame_as_human_frames_moves_them(
+    seed: int, pose: tuple[float, float, float]
+) -> None:
+    rng = np.random.default_rng(seed)
+    geometries = [random_geometry(rng) for _ in range(3)]
+    packed = pack_rings(geometries)
+    world = points_around(rng, 120) + np.array(pose[:2])
+    which = rng.integers(0, len(geometries), len(world))
+    x, y = human_frames(world, [Pose(*pose)])
+    in_frame = np.stack([x[0], y[0]], axis=1)
+    expected = signed_distances_packed(packed, which, in_frame)
+    moved = signed_distances_packed(packed, which, world, pose)
+    np.testing.assert_array_equal(moved, expected)
+    starts = np.arange(0, len(world), 10)
+    surrogate = trajectory_surrogates(packed, which, world, starts, 1.0, pose=pose)
+    np.testing.assert_array_equal(
+        surrogate, trajectory_surrogates(packed, which, in_frame, starts, 1.0)
+    )
+
+
+def test_the_support_bound_is_below_the_distance_and_tighter_than_the_box() -> None:
+    """A thin diagonal strip: its box is a poor bound at the empty corners (the points lie inside
+    the box), the support bound a close one; both stay below GEOS's signed distance, and a
+    trajectory's least surrogate is GEOS's least distance."""
+    strip = shapely.LineString([(0.0, 0.0), (20.0, 20.0)]).buffer(0.5)
+    packed = pack_rings([strip])
+    xy = np.array([[18.0, 2.0], [2.0, 18.0], [10.0, 10.0], [30.0, -5.0]])
+    exact = signed_distance(strip, xy)
+    support = (xy @ DIRECTIONS.T - packed.supports[0]).max(axis=1)
+    assert (support <= exact).all()
+    assert (support[:2] > 10.0).all() and (exact[:2] < 12.0).all()
+    which = np.zeros(len(xy), dtype=np.int64)
+    surrogate = trajectory_surrogates(packed, which, xy, np.array([0]), -10.0)
+    assert surrogate.min() == pytest.approx(exact.min(), abs=1e-9)

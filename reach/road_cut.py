@@ -1,4 +1,5 @@
-"""A set cut by the road: the assumption "the human stays on the drivable area".
+"""A set cut by the road: the assumption "the human stays on the drivable area", and with it
+"the human keeps to the lanes it can reach" (``reach.lanes``), one cut for any such region.
 
 The assumption: the human's position stays in R = (D ⊕ margin) ∪ (the plane outside the map's
 extent) over the whole horizon (``reach.road_map``). The certified statement becomes: every set
@@ -17,6 +18,11 @@ reaches. Cut from an inner set that holds every trajectory's positions:
 Each cut set is inside its inner set. Where the human's observed position is not in R, the
 assumption is already broken: the caller serves the inner set (``RoadMap.on_road``).
 
+The same cut holds for any region a trajectory respecting an assumption keeps its position in:
+:func:`lane_cut` cuts to R ∩ L, L the region of the lanes the human can reach from the lanes
+holding it (``reach.lanes``), and answers None where that assumption does not apply (no lane of
+its direction holds the human): the caller serves the set cut to R alone, or uncut off R.
+
 R is read once per set, in the human frame, around the bounding box of the inner set's whole
 horizon (its outer bound's boxes where it has them); a geometry reaching past that box rebuilds it
 around both, so nothing is cut for want of map.
@@ -31,11 +37,12 @@ import numpy as np
 import shapely
 from shapely.geometry.base import BaseGeometry, BaseMultipartGeometry
 
-from reach.road_map import RoadMap, covers_box, cut_to
+from reach.lanes import DRIVABLE_AREA, HEADING_TOLERANCE, VEHICLE_LANE_TYPES, LaneRegion
+from reach.road_map import DrivableRegion, RoadMap, covers_box, cut_to, region_in_frame, world_box
 from reach.sets import BoxTubeSet, FRTSet
 
-#: The label of this assumption in answers.
-DRIVABLE_AREA = "drivable_area"
+__all__ = ["DRIVABLE_AREA", "CutSet", "connected_to", "extent", "lane_cut"]
+
 #: Lower-dimensional parts of a cut (where a set and R only touch) are kept grown by this (m).
 THIN_PART_M = 1e-6
 #: R is read this far (m) around the box it is read for, so small overshoots do not rebuild it.
@@ -57,6 +64,31 @@ def extent(frt: FRTSet) -> tuple[float, float, float, float]:
     return tuple(float(v) for v in frt.tube(frt.n_slices - 1).bounds)  # type: ignore[return-value]
 
 
+def padded_extent(frt: FRTSet) -> tuple[float, float, float, float]:
+    """:func:`extent` grown by ``REGION_PAD_M``: the box a set's region is read around."""
+    x0, y0, x1, y1 = extent(frt)
+    pad = REGION_PAD_M
+    return (x0 - pad, y0 - pad, x1 + pad, y1 + pad)
+
+
+def lane_cut(
+    inner: FRTSet,
+    road: RoadMap,
+    margin: float,
+    drivable: bool = True,
+    lane_types: tuple[str, ...] = VEHICLE_LANE_TYPES,
+    tolerance: float = HEADING_TOLERANCE,
+) -> CutSet | None:
+    """``inner`` cut to the lanes its agent reaches within the box its region is read around
+    (``reach.lanes``: R ∩ L if ``drivable``, else L); None where the assumption does not apply
+    (no start lane holds the agent: answer without it)."""
+    box = padded_extent(inner)
+    region = road.lane_region(
+        inner.pose, world_box(inner.pose, box), margin, drivable, lane_types, tolerance
+    )
+    return None if region is None else CutSet(inner, region, box=box)
+
+
 def _boxes(frt: Any) -> np.ndarray | None:
     """[M, 4] boxes (x_lo, x_hi, y_lo, y_hi) whose union holds the set, if it has them."""
     if isinstance(frt, BoxTubeSet):
@@ -73,19 +105,29 @@ def _boxes(frt: Any) -> np.ndarray | None:
 
 
 class CutSet(FRTSet):
-    """``inner`` cut by the road (see the module): tubes, slices and intervals in the human frame,
-    each drawn on first use and kept. Clearances measure to the cut tubes."""
+    """``inner`` cut by a region (see the module): tubes, slices and intervals in the human frame,
+    each drawn on first use and kept. Clearances measure to the cut tubes.
+
+    The region is a map's R for ``margin`` (``road`` a ``RoadMap``) or any region read the same
+    way (``road`` a ``DrivableRegion`` or ``reach.lanes.LaneRegion``, ``margin`` unused); the set
+    lists the region's assumptions. ``box`` is :func:`padded_extent` of ``inner``, given where the
+    caller has it."""
 
     clearance_from_tubes = True
 
-    def __init__(self, inner: FRTSet, road: RoadMap, margin: float) -> None:
+    def __init__(
+        self,
+        inner: FRTSet,
+        road: RoadMap | DrivableRegion | LaneRegion,
+        margin: float = 0.0,
+        box: tuple[float, float, float, float] | None = None,
+    ) -> None:
         super().__init__(
             inner.pose, inner.slice_dt, inner.horizon_s, inner.n_slices, inner.conservative
         )
         self.inner = inner
-        self.road = road
-        self.margin = margin
-        self.assumptions = (DRIVABLE_AREA,)
+        self.source = road.region(margin) if isinstance(road, RoadMap) else road
+        self.assumptions: tuple[str, ...] = self.source.assumptions
         self.notch = inner.notch
         self.notch_possible = inner.notch_possible
         self.evaluations = inner.evaluations
@@ -93,10 +135,8 @@ class CutSet(FRTSet):
         self._slices: dict[int, BaseGeometry] = {}
         self._intervals: dict[int, BaseGeometry] = {}
         self._lock = threading.Lock()
-        x0, y0, x1, y1 = extent(inner)
-        pad = REGION_PAD_M
-        self._box = (x0 - pad, y0 - pad, x1 + pad, y1 + pad)
-        self._region = road.region_in_frame(inner.pose, self._box, margin)
+        self._box = padded_extent(inner) if box is None else box
+        self._region = region_in_frame(self.source, inner.pose, self._box)
         self._start: BaseGeometry | None = None
 
     def region_for(self, geometry: BaseGeometry) -> BaseGeometry:
@@ -112,7 +152,7 @@ class CutSet(FRTSet):
                     max(self._box[2], bounds[2] + pad),
                     max(self._box[3], bounds[3] + pad),
                 )
-                self._region = self.road.region_in_frame(self.pose, self._box, self.margin)
+                self._region = region_in_frame(self.source, self.pose, self._box)
             return self._region
 
     def cut(self, geometry: BaseGeometry) -> BaseGeometry:

@@ -24,6 +24,11 @@ so a set is never cut where the map says nothing. R within the extent is indexed
 quadtree: a tile with more is split in four, down to ``MIN_TILE_M``), with four strips around the
 extent for the plane outside it, in an STRtree. Cutting a set K reads only the tiles its bounding
 box meets: K ∩ R = K ∩ their union.
+
+The lanes are indexed once per map too (``reach.lanes.LaneGraph``: areas, centre lines, the lanes
+each one leads to), their areas grown by each margin with R: the region of the lanes an agent can
+reach (:meth:`RoadMap.lane_region`) is read like R, and cut the same way (``reach.road_cut``).
+Successor and neighbour ids the archive does not hold are kept as read and not followed.
 """
 
 from __future__ import annotations
@@ -41,6 +46,7 @@ from shapely import affinity
 from shapely.geometry.base import BaseGeometry
 
 from reach.frames import Pose
+from reach.lanes import DRIVABLE_AREA, HEADING_TOLERANCE, VEHICLE_LANE_TYPES, LaneGraph, LaneRegion
 
 #: The collections of an archive, in the order they are read.
 COLLECTIONS = ("drivable_areas", "lane_segments", "pedestrian_crossings")
@@ -79,6 +85,8 @@ class Lane:
     centerline: np.ndarray | None
     successors: tuple[int, ...]
     predecessors: tuple[int, ...]
+    left_neighbor: int | None = None
+    right_neighbor: int | None = None
 
 
 @dataclass(frozen=True)
@@ -155,10 +163,12 @@ def _ids(element: dict, name: str, field: str) -> tuple[int, ...]:
 
 
 def _lane(key: str, element: dict, field: str, points: _Points) -> Lane:
+    neighbors = []
     for name in ("left_neighbor_id", "right_neighbor_id"):
         value = element.get(name)
         if value is not None and (isinstance(value, bool) or not isinstance(value, int)):
             raise MapFormatError(f"{field}.{name}", "must be an integer id or null")
+        neighbors.append(value)
     lane_type = element.get("lane_type")
     if not isinstance(lane_type, str) or not lane_type:
         raise MapFormatError(f"{field}.lane_type", "must be a string (VEHICLE, BIKE, BUS)")
@@ -177,6 +187,8 @@ def _lane(key: str, element: dict, field: str, points: _Points) -> Lane:
         else points.read(centerline, f"{field}.centerline", 2),
         successors=_ids(element, "successors", field),
         predecessors=_ids(element, "predecessors", field),
+        left_neighbor=neighbors[0],
+        right_neighbor=neighbors[1],
     )
 
 
@@ -253,6 +265,8 @@ class DrivableRegion:
     R near any box within them is a union of tiles; the unions read are kept by the tiles they
     join (``UNIONS_KEPT``, the oldest dropped first): sets near each other read one union."""
 
+    assumptions = (DRIVABLE_AREA,)
+
     def __init__(self, drivable: BaseGeometry, extent: tuple[float, ...], margin: float) -> None:
         grown = drivable.buffer(margin, quad_segs=4) if margin > 0 else drivable
         self.margin = margin
@@ -316,6 +330,27 @@ def covers_box(outer: tuple[float, ...], inner: tuple[float, ...]) -> bool:
     )
 
 
+def world_box(pose: Pose, bounds: tuple[float, ...]) -> tuple[float, float, float, float]:
+    """The map-frame bounding box of the box ``bounds`` of the frame of ``pose``."""
+    x0, y0, x1, y1 = bounds
+    c, s = math.cos(pose.heading), math.sin(pose.heading)
+    xs = [pose.x + c * x - s * y for x, y in ((x0, y0), (x1, y0), (x1, y1), (x0, y1))]
+    ys = [pose.y + s * x + c * y for x, y in ((x0, y0), (x1, y0), (x1, y1), (x0, y1))]
+    return min(xs), min(ys), max(xs), max(ys)
+
+
+def region_in_frame(region: Any, pose: Pose, bounds: tuple[float, ...]) -> BaseGeometry:
+    """A region (``DrivableRegion``, ``reach.lanes.LaneRegion``: anything with ``near``) around
+    the box ``bounds`` of the frame of ``pose`` (the human frame), in that frame: read around the
+    box's map-frame bounding box, moved into the frame."""
+    world = region.near(world_box(pose, bounds))
+    c, s = math.cos(pose.heading), math.sin(pose.heading)
+    # p_human = R(-heading) (p_world - (x, y))
+    offset_x = -(c * pose.x + s * pose.y)
+    offset_y = s * pose.x - c * pose.y
+    return affinity.affine_transform(world, [c, s, -s, c, offset_x, offset_y])
+
+
 def cut_to(k_set: BaseGeometry, region: BaseGeometry) -> BaseGeometry:
     """K ∩ region, K itself where the region holds it (a prepared test, no overlay)."""
     if k_set.is_empty:
@@ -343,6 +378,7 @@ class RoadMap:
             float(v) for v in shapely.total_bounds(np.array(parts, dtype=object))
         )
         self.areas = len(areas)
+        self.lane_graph = LaneGraph(self.lanes, self.extent)
         self._regions: dict[float, DrivableRegion] = {}
         self._lock = threading.Lock()
 
@@ -364,13 +400,30 @@ class RoadMap:
         return cls.from_json(Path(path).read_bytes(), max_points)
 
     def region(self, margin: float) -> DrivableRegion:
-        """R for ``margin`` (metres, >= 0), built on first use."""
+        """R for ``margin`` (metres, >= 0), built on first use, with the lanes' areas grown by the
+        same margin (``reach.lanes``)."""
         if not margin >= 0.0:
             raise ValueError(f"margin must be >= 0, got {margin!r}")
         with self._lock:
             if margin not in self._regions:
-                self._regions[margin] = DrivableRegion(self.drivable, self.extent, margin)
+                region = DrivableRegion(self.drivable, self.extent, margin)
+                self.lane_graph.index(margin, region)
+                self._regions[margin] = region
             return self._regions[margin]
+
+    def lane_region(
+        self,
+        pose: Pose,
+        box: tuple[float, ...],
+        margin: float,
+        drivable: bool = True,
+        lane_types: tuple[str, ...] = VEHICLE_LANE_TYPES,
+        tolerance: float = HEADING_TOLERANCE,
+    ) -> LaneRegion | None:
+        """The region of the lanes an agent at ``pose`` reaches within the box ``box`` (map frame):
+        R ∩ L if ``drivable`` else L (``reach.lanes``); None where no start lane holds the agent."""
+        index = self.lane_graph.index(margin, self.region(margin))
+        return self.lane_graph.region(index, pose, box, drivable, lane_types, tolerance)
 
     def cut(self, k_world: BaseGeometry, margin: float) -> BaseGeometry:
         """K ∩ R for a set K in the map's frame: R read near K's bounding box only."""
@@ -383,18 +436,8 @@ class RoadMap:
         return bool(self.region(margin).covers_xy(np.array([x]), np.array([y]))[0])
 
     def region_in_frame(self, pose: Pose, bounds: tuple[float, ...], margin: float) -> BaseGeometry:
-        """R around the box ``bounds`` of the frame of ``pose`` (the human frame), in that frame:
-        the tiles the box's world bounding box meets, moved into the frame."""
-        x0, y0, x1, y1 = bounds
-        c, s = math.cos(pose.heading), math.sin(pose.heading)
-        corners = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
-        wx = pose.x + c * corners[:, 0] - s * corners[:, 1]
-        wy = pose.y + s * corners[:, 0] + c * corners[:, 1]
-        world = self.region(margin).near((wx.min(), wy.min(), wx.max(), wy.max()))
-        # p_human = R(-heading) (p_world - (x, y))
-        offset_x = -(c * pose.x + s * pose.y)
-        offset_y = s * pose.x - c * pose.y
-        return affinity.affine_transform(world, [c, s, -s, c, offset_x, offset_y])
+        """R around the box ``bounds`` of the frame of ``pose`` (the human frame), in that frame."""
+        return region_in_frame(self.region(margin), pose, bounds)
 
     def summary(self) -> dict[str, Any]:
         """Counts, extent and drivable area, for the API."""

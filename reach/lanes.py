@@ -1,0 +1,285 @@
+"""The lane graph of a map and the region of the lanes an agent can reach along it.
+
+The assumption ``reachable_lanes`` (SPOT's lane constraints, Koschi & Althoff, *SPOT: A Tool for
+Set-Based Prediction of Traffic Participants*, IEEE IV 2017: road users do not drive backwards in
+their lane and keep to the lanes they can reach), for vehicles, with its definitions:
+
+* a lane's **area** is the polygon between its left and right boundaries; its **direction** at a
+  point is the direction of its centre line (given, or the mean of its boundaries) on the segment
+  nearest the point;
+* the **start lanes** of an agent at position p with heading θ are the lanes of the agent's lane
+  types whose area grown by the margin holds p and whose direction at p is within the heading
+  tolerance (``HEADING_TOLERANCE``, 30°) of θ;
+* lane b **follows** lane a when b is a successor of a, or a's left or right neighbour whose
+  overall direction (first to last centre-line point) makes an acute angle with a's;
+* the **reachable lanes** within a box B are the start lanes and every lane of the agent's types
+  that follows a reachable lane and whose grown area's bounding box meets B (successors and
+  same-direction lane changes, as often as B allows; ids the map does not hold are not followed);
+* the region is L = (⋃ reachable lanes' areas ⊕ margin) ∪ (the plane outside the map's extent);
+  with the drivable area assumed too, each grown lane area is cut to D ⊕ margin first, so the
+  region is R ∩ L.
+
+B is the map-frame bounding box of the box a set's region is read around
+(``reach.road_cut.padded_extent``: its outer bound's boxes, grown): a trajectory inside the set
+never leaves B, so every lane it drives along meets B. The assumption does not apply (no region:
+the set is answered without it) where the agent breaks it already: no start lane holds it (off
+every lane of its types, or its heading more than the tolerance off every lane holding it), or,
+with the drivable area, its position is off R.
+
+A trajectory respecting the assumption keeps its position in the region, so the cut of
+``reach.road_cut.CutSet`` (components of tube ∩ region connected to the start) applies to it.
+The graph is indexed once per map; each margin's grown areas once per margin, in an STRtree; the
+region of each set of reachable lanes once, kept (``REGIONS_KEPT``).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections import OrderedDict
+from collections.abc import Iterable, Sequence
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import shapely
+from shapely.geometry.base import BaseGeometry
+
+if TYPE_CHECKING:
+    from reach.road_map import DrivableRegion, Lane
+
+#: The label of this assumption in answers.
+REACHABLE_LANES = "reachable_lanes"
+#: The label of the drivable-area assumption (``reach.road_cut``), listed with it where both hold.
+DRIVABLE_AREA = "drivable_area"
+#: Lane types a vehicle starts in and follows.
+VEHICLE_LANE_TYPES = ("VEHICLE", "BUS")
+#: A lane holding the agent is a start lane when its direction there is within this of the
+#: agent's heading (radians).
+HEADING_TOLERANCE = math.radians(30.0)
+#: Regions kept per map and margin (the latest used).
+REGIONS_KEPT = 256
+
+
+def _resample(line: np.ndarray, n: int) -> np.ndarray:
+    """``line`` ([m, 2]) at ``n`` points evenly spaced along its length."""
+    step = np.linalg.norm(np.diff(line, axis=0), axis=1)
+    along = np.concatenate([[0.0], np.cumsum(step)])
+    if along[-1] <= 0.0:
+        return np.repeat(line[:1], n, axis=0)
+    at = np.linspace(0.0, along[-1], n)
+    return np.stack([np.interp(at, along, line[:, 0]), np.interp(at, along, line[:, 1])], axis=1)
+
+
+def centre_line(lane: Lane) -> np.ndarray:
+    """The lane's centre line: given, or the mean of its boundaries resampled alike."""
+    if lane.centerline is not None:
+        return lane.centerline
+    n = max(len(lane.left), len(lane.right), 2)
+    return (_resample(lane.left, n) + _resample(lane.right, n)) / 2.0
+
+
+def lane_area(lane: Lane) -> BaseGeometry:
+    """The polygon between the lane's boundaries (made valid; empty where it encloses none)."""
+    ring = np.vstack([lane.left, lane.right[::-1]])
+    parts = shapely.get_parts(shapely.make_valid(shapely.Polygon(ring)))
+    polygons = [p for p in parts if isinstance(p, shapely.Polygon) and p.area > 0.0]
+    return shapely.union_all(polygons) if polygons else shapely.Polygon()
+
+
+def direction_at(line: np.ndarray, x: float, y: float) -> float:
+    """The direction (radians) of the segment of ``line`` nearest the point (x, y)."""
+    a, b = line[:-1], line[1:]
+    d = b - a
+    length2 = np.maximum((d * d).sum(axis=1), 1e-18)
+    t = np.clip(((x - a[:, 0]) * d[:, 0] + (y - a[:, 1]) * d[:, 1]) / length2, 0.0, 1.0)
+    gap = np.hypot(a[:, 0] + t * d[:, 0] - x, a[:, 1] + t * d[:, 1] - y)
+    k = int(np.argmin(gap))
+    return math.atan2(d[k, 1], d[k, 0])
+
+
+def _holds(outer: tuple[float, ...], inner: tuple[float, ...]) -> bool:
+    """Whether the box ``outer`` holds the box ``inner`` (both x0, y0, x1, y1)."""
+    return (
+        outer[0] <= inner[0]
+        and outer[1] <= inner[1]
+        and outer[2] >= inner[2]
+        and outer[3] >= inner[3]
+    )
+
+
+def _angle(a: float, b: float) -> float:
+    """|a - b| wrapped into [0, π]."""
+    return abs((a - b + math.pi) % (2.0 * math.pi) - math.pi)
+
+
+class LaneRegion:
+    """L (or R ∩ L) of one set of reachable lanes, in the map's frame (see the module): the same
+    reading interface as ``reach.road_map.DrivableRegion``."""
+
+    def __init__(
+        self,
+        lanes: frozenset[str],
+        pieces: Sequence[BaseGeometry],
+        index: MarginIndex,
+        drivable: bool,
+    ) -> None:
+        self.lanes = lanes
+        self.margin = index.margin
+        self.drivable = drivable
+        self.assumptions = (DRIVABLE_AREA, REACHABLE_LANES) if drivable else (REACHABLE_LANES,)
+        self.extent = index.extent
+        self.indexed = index.indexed
+        self.grown = shapely.union_all(list(pieces)) if len(pieces) else shapely.Polygon()
+        shapely.prepare(self.grown)
+        self._strips = index.strips
+        self._union: BaseGeometry | None = None
+
+    def near(self, bounds: tuple[float, ...]) -> BaseGeometry:
+        """The region within (at least) the box ``bounds`` (x0, y0, x1, y1): the grown lanes
+        where the box is within the extent, else with the plane outside it."""
+        if _holds(self.extent, bounds):
+            return self.grown
+        if self._union is None:
+            union = shapely.union_all([self.grown, *self._strips])
+            shapely.prepare(union)
+            self._union = union
+        if _holds(self.indexed, bounds):
+            return self._union
+        box = shapely.box(*bounds)
+        return shapely.union(self._union, box.difference(shapely.box(*self.indexed)))
+
+    def covers_xy(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Whether each point lies in the region."""
+        x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+        e0, f0, e1, f1 = self.extent
+        outside = (x < e0) | (x > e1) | (y < f0) | (y > f1)
+        return outside | shapely.intersects_xy(self.grown, x, y)
+
+
+class MarginIndex:
+    """The lanes' areas grown by one margin, as they are and cut to D ⊕ margin, in an STRtree,
+    with the strips indexing the plane outside the extent (those of the map's drivable region
+    R for the same margin), and the regions read from them."""
+
+    def __init__(self, graph: LaneGraph, margin: float, drivable: DrivableRegion) -> None:
+        self.margin = margin
+        self.extent = graph.extent
+        areas = graph.areas
+        self.grown = shapely.buffer(areas, margin, quad_segs=4) if margin > 0 else areas
+        self.clipped = shapely.intersection(self.grown, drivable.grown)
+        self.tree = shapely.STRtree(self.grown)
+        self.strips = list(drivable.tiles[drivable.road_tiles :])
+        self.indexed = drivable.indexed
+        self._regions: OrderedDict[tuple[frozenset[int], bool], LaneRegion] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def region(self, reached: frozenset[int], ids: Sequence[str], drivable: bool) -> LaneRegion:
+        """The region of the lanes ``reached`` (indices), R ∩ L if ``drivable`` else L; built on
+        first use and kept."""
+        key = (reached, drivable)
+        with self._lock:
+            found = self._regions.get(key)
+            if found is not None:
+                self._regions.move_to_end(key)
+                return found
+        order = sorted(reached)
+        pieces = (self.clipped if drivable else self.grown)[order]
+        region = LaneRegion(frozenset(ids[i] for i in order), pieces, self, drivable)
+        with self._lock:
+            self._regions[key] = region
+            while len(self._regions) > REGIONS_KEPT:
+                self._regions.popitem(last=False)
+        return region
+
+
+class LaneGraph:
+    """A map's lanes: areas, centre lines, the ``follows`` relation (see the module), indexed
+    once; each margin's grown areas on first use (:meth:`index`)."""
+
+    def __init__(self, lanes: Sequence[Lane], extent: tuple[float, ...]) -> None:
+        self.extent = extent
+        self.ids = [lane.id for lane in lanes]
+        self.types = np.array([lane.lane_type for lane in lanes], dtype=object)
+        self.areas = np.array([lane_area(lane) for lane in lanes], dtype=object)
+        self.lines = [centre_line(lane) for lane in lanes]
+        at = {lane_id: i for i, lane_id in enumerate(self.ids)}
+        overall = np.array([line[-1] - line[0] for line in self.lines]).reshape(-1, 2)
+        self.follow: list[tuple[int, ...]] = []
+        for i, lane in enumerate(lanes):
+            nexts = [at[str(s)] for s in lane.successors if str(s) in at]
+            for n in (lane.left_neighbor, lane.right_neighbor):
+                j = at.get(str(n)) if n is not None else None
+                if j is not None and float(overall[i] @ overall[j]) > 0.0:
+                    nexts.append(j)
+            self.follow.append(tuple(dict.fromkeys(nexts)))
+        self._margins: dict[float, MarginIndex] = {}
+        self._lock = threading.Lock()
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    def index(self, margin: float, drivable: DrivableRegion) -> MarginIndex:
+        """The grown areas of ``margin`` (with R of the same margin), built on first use."""
+        with self._lock:
+            if margin not in self._margins:
+                self._margins[margin] = MarginIndex(self, margin, drivable)
+            return self._margins[margin]
+
+    def start(
+        self,
+        index: MarginIndex,
+        xy: tuple[float, float],
+        heading: float,
+        lane_types: Iterable[str],
+        tolerance: float,
+    ) -> list[int]:
+        """The start lanes of an agent at ``xy`` heading ``heading`` (see the module)."""
+        x, y = xy
+        found = index.tree.query(shapely.Point(x, y), predicate="intersects")
+        types = set(lane_types)
+        return [
+            int(i)
+            for i in sorted(found.tolist())
+            if self.types[i] in types
+            and _angle(direction_at(self.lines[i], x, y), heading) <= tolerance
+        ]
+
+    def reachable(
+        self,
+        index: MarginIndex,
+        start: list[int],
+        box: tuple[float, ...],
+        lane_types: Iterable[str],
+    ) -> frozenset[int]:
+        """The start lanes and the lanes of ``lane_types`` whose grown area's bounding box meets
+        ``box`` that follow them."""
+        types = set(lane_types)
+        met = index.tree.query(shapely.box(*box))
+        within = {int(i) for i in met.tolist() if self.types[i] in types}
+        reached = set(start)
+        frontier = list(start)
+        while frontier:
+            i = frontier.pop()
+            for j in self.follow[i]:
+                if j in within and j not in reached:
+                    reached.add(j)
+                    frontier.append(j)
+        return frozenset(reached)
+
+    def region(
+        self,
+        index: MarginIndex,
+        pose: Any,
+        box: tuple[float, ...],
+        drivable: bool = True,
+        lane_types: Iterable[str] = VEHICLE_LANE_TYPES,
+        tolerance: float = HEADING_TOLERANCE,
+    ) -> LaneRegion | None:
+        """The region of the lanes an agent at ``pose`` (x, y, heading) reaches within ``box``
+        (the map's frame); None where it breaks the assumption already: no start lane holds it,
+        or (``drivable``) its position is off R."""
+        start = self.start(index, (pose.x, pose.y), pose.heading, lane_types, tolerance)
+        if not start:
+            return None
+        region = index.region(self.reachable(index, start, box, lane_types), self.ids, drivable)
+        return region if region.covers_xy(np.array([pose.x]), np.array([pose.y]))[0] else None

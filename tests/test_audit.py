@@ -311,17 +311,35 @@ def test_ledger_keeps_only_versions_that_can_still_cover_and_forgets_idle_agents
     for v, t0 in enumerate((0.0, 1.0, 2.0, 3.0, 3.5), start=1):
         ledger.record("a", served("a", v, t0))
     # At most 4 kept; at 3.6 the horizons of versions 2 (to 4.0) .. 5 cover it.
-    assert [v.version for v in ledger.covering("a", 3.6)] == [2, 3, 4, 5]
+    assert [v.version for v in ledger.due("a", 3.6)] == [2, 3, 4, 5]
     ledger.record("a", served("a", 6, 5.5))  # versions 2 (to 4.0) and 3 (to 5.0) have ended
-    assert [v.version for v in ledger.covering("a", 5.6)] == [4, 5, 6]
+    assert [v.version for v in ledger.due("a", 5.6)] == [4, 5, 6]
     ledger.record("a", served("a", 1, 9.0))  # version 1 again: a new life starts afresh
-    assert [v.version for v in ledger.covering("a", 9.5)] == [1]
+    assert [v.version for v in ledger.due("a", 9.5)] == [1]
     ledger.record("b", served("b", 1, 0.0))
     ledger.record("c", served("c", 1, 0.0))  # over the cap of 2: "a", least recent, goes
-    assert ledger.covering("a", 9.5) == [] and len(ledger) == 2
+    assert ledger.due("a", 9.5) == [] and len(ledger) == 2
     now[0] = 11.0
     ledger.record("d", served("d", 1, 0.0))  # "b" and "c" idle for more than the TTL
-    assert len(ledger) == 1 and ledger.covering("d", 1.0) != []
+    assert len(ledger) == 1 and ledger.due("d", 1.0) != []
+
+
+def test_ledger_scores_each_version_at_positions_spaced_apart() -> None:
+    from service.runtime.audit import AuditLedger, ServedVersion
+    from service.runtime.scheduler import FRTKey
+
+    ledger = AuditLedger(max_versions=32, max_agents=4, spacing_s=0.4)
+    for v in range(1, 4):  # versions at 0.0, 0.1, 0.2
+        t0 = (v - 1) / 10
+        key = FRTKey.of("a", v, [t0])
+        ledger.record("a", ServedVersion(v, key, t0, t0 + 3.0, 1.5, "car", None))  # type: ignore[arg-type]
+    due = [[s.version for s in ledger.due("a", k / 10)] for k in range(1, 12)]  # 0.1 .. 1.1 s
+    # Each version at the first position after it, then at each one at least 0.4 s after the
+    # last it was scored at (positions on a 0.1 s grid: every fourth).
+    assert due == [[1], [2], [3], [], [1], [2], [3], [], [1], [2], [3]]
+    unspaced = AuditLedger(max_versions=32, max_agents=4)
+    unspaced.record("a", ServedVersion(1, FRTKey.of("a", 1, [0.0]), 0.0, 3.0, 1.5, "car", None))  # type: ignore[arg-type]
+    assert all(len(unspaced.due("a", k / 10)) == 1 for k in range(1, 31))
 
 
 def test_a_frames_positions_are_scored_together_as_each_set_measures_them() -> None:

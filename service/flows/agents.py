@@ -127,6 +127,7 @@ async def observe_many(
         for e, prior in zip(entries, previous, strict=True)
         if _prepared(services, e, prior, results)
     ]
+    await services.priority.observation_turn()  # between stages, checks that arrived go first
     built = next_states(
         [e.previous for e in entries], [e.inputs for e in entries], settings, engine
     )  # type: ignore[misc]
@@ -146,6 +147,7 @@ async def observe_many(
     building = start_conservative(
         services, [services.job_for(r[0]) for r in built if not isinstance(r, APIError)]
     )  # type: ignore[index]
+    await services.priority.observation_turn()
     stored = await services.store.update_many(updates)
     _submitted(services, stored_entries, stored, results, building)
     return results  # type: ignore[return-value]
@@ -228,8 +230,7 @@ def _submitted(
             results[entry.index] = state
             continue
         applied.append((entry, state, services.job_for(state)))
-    for _, _, job in applied:
-        services.submit(job)
+    services.submit_many([job for _, _, job in applied])
     building()
     conservative = cached_conservative(services, [job for _, _, job in applied])
     later = []
@@ -321,19 +322,28 @@ def _record_for_audit(
     return [(state.agent_id, position.x, position.y, request.timestamp)]
 
 
+#: Positions :func:`_audit_later` scores in one turn of the event loop: a frame's audit runs in
+#: several turns, with the requests that arrive meanwhile served between them.
+AUDIT_POSITIONS_PER_TURN = 25
+
+
 def _audit_later(services: Services, positions: list[tuple[str, float, float, float]]) -> None:
-    """Score each (agent, x, y, t) against the agent's versions covering t, all together
-    (``score_many``), and count them (``Services.audit_later`` of each)."""
+    """Score each (agent, x, y, t) against the agent's versions due at t
+    (``AuditLedger.due``), ``AUDIT_POSITIONS_PER_TURN`` together (``score_many``) per turn of
+    the event loop, and count them."""
+    now, rest = positions[:AUDIT_POSITIONS_PER_TURN], positions[AUDIT_POSITIONS_PER_TURN:]
+    if rest:
+        asyncio.get_running_loop().call_soon(_audit_later, services, rest)
     try:
-        versions = [services.audit.covering(agent_id, t) for agent_id, _, _, t in positions]
+        versions = [services.audit.due(agent_id, t) for agent_id, _, _, t in now]
         scored = score_many(
-            [(x, y, t, v) for (_, x, y, t), v in zip(positions, versions, strict=True)],
+            [(x, y, t, v) for (_, x, y, t), v in zip(now, versions, strict=True)],
             services.scheduler.lookup,
         )
     except Exception as exc:  # a measurement: it must never take the service down
         log.error("coverage audit failed", extra={"error": repr(exc)})
         return
-    audited = [(a, s, t) for (a, _, _, t), s in zip(positions, scored, strict=True)]
+    audited = [(a, s, t) for (a, _, _, t), s in zip(now, scored, strict=True)]
     count_audited_many(services.metrics, services.audit, services.coverage, audited)
 
 

@@ -5,7 +5,9 @@ version of the agent's sets whose horizon covers t (``t0 < t <= t0 + horizon``, 
 version's observation time): inside K at that time, i.e. within the tube up to ``t - t0`` (the
 query a time-indexed collision check makes, ``FRTSet.clearance``), and inside C = K ⊕ R_col
 (distance to K at most the version's collision radius). Each (position, earlier version) pair is
-one audited position.
+one audited position. A version is scored against positions at least ``spacing_s`` apart
+(``FRT_AUDIT_SPACING_S``): at 10 Hz a position 0.1 s after the last scored one says little the
+last did not.
 
 The set scored is the one the service would answer a check from at audit time: the version's exact
 set if it is still cached (the two latest versions, ``VERSIONS_PER_AGENT``) and the position's tube
@@ -15,9 +17,10 @@ every version is built by its observation anyway (``Services.conservative``); th
 reference to it (about 3.3 kB) for the agent's latest ``audit_max_versions`` versions whose
 horizon has not ended, and forgets an agent not observed for the agent TTL.
 
-When: after the observation's answer is sent (``Services.audit_later``), so the observation does
-not wait for it, unless the agent has adaptive gamma (``coverage_target``), whose next bounds
-depend on it: then before its new state is built. The ledger, and so each agent's counts, is the
+When: after the observation's answer is sent (a frame's positions a few at a time per turn of
+the event loop, ``service.flows.agents``), so the observation does not wait for it, unless the
+agent has adaptive gamma (``coverage_target``), whose next bounds depend on it: then before its
+new state is built. The ledger, and so each agent's counts, is the
 process's own: with several replicas an observation is scored against the versions its replica
 served, and ``GET /v1/agents/{id}`` reports the counts of the replica that answers it.
 """
@@ -64,12 +67,14 @@ class ServedVersion:
 
 
 class _AgentAudit:
-    """One agent's recent versions, its counts (``fold``) and when it was last recorded."""
+    """One agent's recent versions, when each was last scored, its counts (``fold``) and when it
+    was last recorded."""
 
-    __slots__ = ("counts", "recorded_at", "versions")
+    __slots__ = ("counts", "last_scored", "recorded_at", "versions")
 
     def __init__(self, max_versions: int) -> None:
         self.versions: deque[ServedVersion] = deque(maxlen=max_versions)
+        self.last_scored: dict[int, float] = {}  # version -> time of its last scored position
         self.counts: dict[str, Any] | None = None
         self.recorded_at = 0.0
 
@@ -77,7 +82,8 @@ class _AgentAudit:
 class AuditLedger:
     """Per agent, its latest ``max_versions`` served versions whose horizon has not ended before
     the latest (oldest first) and its audit counts, for at most ``max_agents`` agents recorded
-    within ``ttl_s`` (the least recently recorded go first). Thread-safe."""
+    within ``ttl_s`` (the least recently recorded go first). A version is scored against
+    positions at least ``spacing_s`` apart (0: every position). Thread-safe."""
 
     def __init__(
         self,
@@ -85,19 +91,33 @@ class AuditLedger:
         max_agents: int,
         ttl_s: float = math.inf,
         clock: Callable[[], float] = time.monotonic,
+        spacing_s: float = 0.0,
     ) -> None:
         self._max_versions = max_versions
+        self._spacing_s = spacing_s
         self._max_agents = max_agents
         self._ttl_s = ttl_s
         self._clock = clock
         self._agents: OrderedDict[str, _AgentAudit] = OrderedDict()
         self._lock = threading.Lock()
 
-    def covering(self, agent_id: str, t: float) -> list[ServedVersion]:
-        """The agent's versions whose horizon covers ``t``, oldest first."""
+    def due(self, agent_id: str, t: float) -> list[ServedVersion]:
+        """The agent's versions to score a position observed at ``t`` against, oldest first: those
+        whose horizon covers ``t`` and that were last scored at least ``spacing_s`` before ``t``
+        (or never), each then marked scored at ``t``."""
         with self._lock:
             entry = self._agents.get(agent_id)
-            return [v for v in entry.versions if v.covers(t)] if entry else []
+            if entry is None:
+                return []
+            last, earliest = entry.last_scored, t - self._spacing_s + HORIZON_SLACK_S
+            due = [
+                v
+                for v in entry.versions
+                if v.covers(t) and last.get(v.version, -math.inf) <= earliest
+            ]
+            for v in due:
+                last[v.version] = t
+            return due
 
     def record(self, agent_id: str, served: ServedVersion) -> None:
         """Add the agent's new version (starting afresh if it is not above the last recorded: the
@@ -112,6 +132,9 @@ class AuditLedger:
             while versions and versions[0].horizon_end + HORIZON_SLACK_S < served.t0:
                 versions.popleft()
             versions.append(served)
+            if len(entry.last_scored) > len(versions):
+                oldest = versions[0].version
+                entry.last_scored = {v: t for v, t in entry.last_scored.items() if v >= oldest}
             entry.recorded_at = now
             self._agents[agent_id] = entry
             agents = self._agents

@@ -100,7 +100,10 @@ class Services:
             conservative_cache=LRUCache(settings.frt_cache_size),
             tubes=TubeBuilder(on_drawn=metrics.event_loop_tubes.inc),
             audit=AuditLedger(
-                settings.audit_max_versions, settings.max_agents, ttl_s=settings.agent_ttl_s
+                settings.audit_max_versions,
+                settings.max_agents,
+                ttl_s=settings.agent_ttl_s,
+                spacing_s=settings.audit_spacing_s,
             ),
             coverage=RollingCoverage(settings.audit_window),
             maps=registry_for(settings),
@@ -165,27 +168,17 @@ class Services:
     def score_position(self, agent_id: str, x: float, y: float, t: float) -> list[Scored]:
         """The position (x, y) observed at ``t`` scored against the agent's earlier versions whose
         horizon covers ``t`` (``service.runtime.audit``); none if there are none."""
-        versions = self.audit.covering(agent_id, t)
+        versions = self.audit.due(agent_id, t)
         return score(x, y, t, versions, self.scheduler.lookup) if versions else []
-
-    def audit_later(self, agent_id: str, x: float, y: float, t: float) -> None:
-        """Score and count the position (x, y) observed at ``t``: called once the observation's
-        answer is on its way."""
-        try:
-            scored = self.score_position(agent_id, x, y, t)
-        except Exception as exc:  # a measurement: it must never take the service down
-            log.error("coverage audit failed", extra={"agent_id": agent_id, "error": repr(exc)})
-            return
-        self.take_audit(agent_id, scored, t)
 
     def take_audit(self, agent_id: str, scored: Sequence[Scored], t: float) -> None:
         """Count audited positions into the agent's counts and the ``frt_audit_*`` metrics."""
         count_audited(self.metrics, self.audit, self.coverage, agent_id, scored, t)
 
-    def submit(self, job: FRTJob) -> None:
-        """Start computing the exact set of ``job``, whose version an observation has just stored
-        here, in the background."""
-        self.scheduler.submit(job.key, self.exact_task(job), observed=True)
+    def submit_many(self, jobs: Sequence[FRTJob]) -> None:
+        """Start computing the exact sets of ``jobs``, whose versions observations have just
+        stored here, in the background (queued together)."""
+        self.scheduler.submit_many([(job.key, self.exact_task(job)) for job in jobs], observed=True)
 
     def cached_exact(self, jobs: Sequence[FRTJob]) -> list[FRTSet | None]:
         """Each job's exact set if it is computed already, else None; the hits are counted at once

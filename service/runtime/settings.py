@@ -140,6 +140,9 @@ class Settings(BaseSettings):
     #: Earlier versions of one agent kept for the audit (the latest; each holds its conservative
     #: set, a few kB): 32 covers a 3 s horizon at 10 Hz.
     audit_max_versions: int = Field(32, ge=1, le=256)
+    #: A version is scored against its agent's positions at least this many seconds apart (the
+    #: first after it, then every later one this long after the last scored; 0: every position).
+    audit_spacing_s: float = Field(0.4, ge=0.0, le=10.0)
     #: Audited positions the rolling coverage gauges (``frt_audit_coverage``) average over.
     audit_window: int = Field(1000, ge=1, le=1_000_000)
     #: Adaptive gamma (``service.flows.adaptive_gamma``): the share of audited positions inside C

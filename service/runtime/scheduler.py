@@ -233,36 +233,48 @@ class FRTScheduler:
         first); if a newer version is queued or running, this one is not computed (the returned
         future is cancelled). ``observed``: the version was stored here by an observation (its
         set is counted as such in ``frt_exact_sets``; else it was read from the store)."""
+        return self.submit_many([(key, compute)], observed=observed)[0]
+
+    def submit_many(
+        self, jobs: Sequence[tuple[FRTKey, Callable[[], Any]]], *, observed: bool = False
+    ) -> list[Future[Any]]:
+        """:meth:`submit` of each (key, compute) in turn (a frame's agents), the workers fed once
+        after all of them are queued."""
         with self._lock:
             if self._executor is None:
                 raise RuntimeError("scheduler not started")
-            cached = self._cache.get(key)
-            if cached is not None:
-                done: Future[Any] = Future()
-                done.set_result(cached)
-                return done
-            pending = self._pending.get(key)
-            if pending is not None:
-                pending.observed |= observed
-                return pending.future
-            future: Future[Any] = Future()
-            slot: Hashable = key.agent_id or key
-            if key.agent_id:
-                # The agent's queued set is in its slot (one per agent): no scan of the queue.
-                older = self._queue.get(slot)
-                if (older is not None and older.version > key.version) or any(
-                    k.agent_id == key.agent_id and k.version > key.version for k in self._running
-                ):
-                    future.cancel()
-                    return future
-                if older is not None:
-                    self._pending.pop(older).future.cancel()
-            self._pending[key] = _Job(compute, future, observed=observed)
-            self._queue[slot] = key
-            self._queue.move_to_end(slot)  # the newest at the end, taken first
-            if key.agent_id:
-                self._refinements.note_version(key)
+            futures = [self._enqueued(key, compute, observed) for key, compute in jobs]
         self._dispatch()
+        return futures
+
+    def _enqueued(self, key: FRTKey, compute: Callable[[], Any], observed: bool) -> Future[Any]:
+        """:meth:`submit`'s queueing of one key (called with ``_lock`` held)."""
+        cached = self._cache.get(key)
+        if cached is not None:
+            done: Future[Any] = Future()
+            done.set_result(cached)
+            return done
+        pending = self._pending.get(key)
+        if pending is not None:
+            pending.observed |= observed
+            return pending.future
+        future: Future[Any] = Future()
+        slot: Hashable = key.agent_id or key
+        if key.agent_id:
+            # The agent's queued set is in its slot (one per agent): no scan of the queue.
+            older = self._queue.get(slot)
+            if (older is not None and older.version > key.version) or any(
+                k.agent_id == key.agent_id and k.version > key.version for k in self._running
+            ):
+                future.cancel()
+                return future
+            if older is not None:
+                self._pending.pop(older).future.cancel()
+        self._pending[key] = _Job(compute, future, observed=observed)
+        self._queue[slot] = key
+        self._queue.move_to_end(slot)  # the newest at the end, taken first
+        if key.agent_id:
+            self._refinements.note_version(key)
         return future
 
     async def wait(self, key: FRTKey, compute: Callable[[], Any], timeout_s: float) -> Any | None:
@@ -307,7 +319,7 @@ class FRTScheduler:
         for label, count in (("pending", under_way), ("miss", len(jobs) - under_way)):
             if count:
                 self._metrics.frt_cache.labels(label).inc(count)
-        futures = [self.submit(key, compute) for key, compute in jobs]
+        futures = self.submit_many(jobs)
         queued_finish = self.queued_finish_s() if any(not f.running() for f in futures) else {}
         out: list[Future[Any] | None] = []
         for (key, _), future in zip(jobs, futures, strict=True):

@@ -2,17 +2,23 @@
 
 from __future__ import annotations
 
+from typing import Annotated
+
 from fastapi import APIRouter
 
+from service.api.routes.json_body import body_openapi, json_body
+from service.api.routes.model_json import ModelJSONResponse
 from service.api.routes.params import ServicesDep
 from service.flows import frames
 from service.wire.schemas import FrameRequest, FrameResponse
 
 router = APIRouter(prefix="/v1", tags=["agents"])
 
+FrameBody = Annotated[FrameRequest, json_body(FrameRequest)]
 
-@router.post("/frames", response_model=FrameResponse)
-async def apply_frame(body: FrameRequest, services: ServicesDep) -> FrameResponse:
+
+@router.post("/frames", response_model=FrameResponse, openapi_extra=body_openapi(FrameRequest))
+async def apply_frame(body: FrameBody, services: ServicesDep) -> ModelJSONResponse:
     """Apply one frame: every agent's observation at the frame's timestamp, each on its own (a
     rejected agent is answered by index and field, nothing of it changes; the others apply)."""
-    return await frames.apply_frame(services, body)
+    return ModelJSONResponse(await frames.apply_frame(services, body))

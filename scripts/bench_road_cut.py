@@ -9,7 +9,10 @@ model's geometry, no network); then, ``--repeat`` times each:
 - ``world``: ``RoadMap.cut`` of the whole-horizon tube K in the world frame (K ∩ R);
 - ``set``: a ``CutSet`` made (R read and moved into the human frame once) and its whole-horizon
   tube cut (with the components that cannot be reached on the road dropped);
-- ``set_all``: then every tube, slice and interval of that set cut.
+- ``set_all``: then every tube, slice and interval of that set cut;
+- ``lanes``: the set cut to the drivable area and the lanes it can reach (``lane_cut``: the start
+  lanes found, the lane graph followed within the set's box, the region read and moved into the
+  human frame) and its whole-horizon tube cut, for the sets the lane assumption applies to.
 
 Prints p50 / p99 / max in milliseconds of wall time and of the thread's CPU time (on a shared
 machine the wall time's tail is mostly other processes' turns). Timing only: nothing is asserted.
@@ -32,7 +35,7 @@ from models.runtime import ValueModel  # noqa: E402
 from models.value_fields import engine_for  # noqa: E402
 from reach.dynamics import wrap_angle  # noqa: E402
 from reach.frames import Pose, to_world_frame  # noqa: E402
-from reach.road_cut import CutSet  # noqa: E402
+from reach.road_cut import CutSet, lane_cut  # noqa: E402
 from reach.road_map import RoadMap  # noqa: E402
 
 MODEL = ROOT / "models" / "frt_unicycle.onnx"
@@ -108,6 +111,11 @@ def main() -> None:
             for j in range(cut.n_slices):
                 cut.tube(j), cut.slice(j), cut.interval(j)
             clock.stop("set_all")
+            clock.start()
+            lanes = lane_cut(frt, road, args.margin)
+            if lanes is not None:
+                lanes.tube(lanes.n_slices - 1)
+                clock.stop("lanes")
     print(f"{len(exact)} vehicle sets of the recorded scenario, margin {args.margin} m, "
           f"{args.repeat} repeats; milliseconds")  # fmt: skip
     for name in clock.wall:

@@ -10,9 +10,13 @@ Gaussian, its diagonal covariance cross-fitted on the other fold of tracks. Each
 through the real service in-process (``POST /v1/frt``, the shipped model, the map registered from
 ``FRT_MAP``), with confidence off (beta = 1) at each gamma of ``--gammas``, twice: without a map,
 and with ``map_id`` (the set cut to the drivable area grown by each margin of ``--margins``,
-``FRT_MAP_MARGIN_M``, while the car is on it). Both answers come from the same exact set (uncut by the notch refinement, which is off here,
-so the two differ by the road cut alone). For each, the actual positions of the next 3 s (30
-points) are checked with ``collision_radius`` 0, so a clearance is the signed distance to K:
+``FRT_MAP_MARGIN_M``, while the car is on it), and a third time cut to the drivable area and the
+lanes it can reach (``reach.road_cut.lane_cut``, start lanes within ``--heading-tolerance`` of its
+heading; to the drivable area alone where the lane assumption does not apply). The three come
+from the same exact set (uncut by the notch refinement, which is off here, so they differ by the
+road cut alone); the third is cut in-process from the set the service answered from (the service
+does not serve the lane assumption). For each, the actual positions of the next 3 s (30 points)
+are checked with ``collision_radius`` 0, so a clearance is the signed distance to K:
 
 - coverage: the share of those positions inside C = K ⊕ 1.5 m, at each position's time (the tube
   up to it, as the calibration and the audit score) and in the whole-horizon C;
@@ -41,8 +45,15 @@ sys.path.insert(0, str(ROOT))
 
 from experiments import av2  # noqa: E402
 from reach.dynamics import wrap_angle  # noqa: E402
+from reach.frames import Pose  # noqa: E402
+from reach.lanes import HEADING_TOLERANCE, REACHABLE_LANES  # noqa: E402
+from reach.road_cut import CutSet, lane_cut  # noqa: E402
+from reach.sets import FRTSet  # noqa: E402
 from service.api.app import create_app  # noqa: E402
+from service.flows.stateless import request_bounds  # noqa: E402
+from service.runtime.jobs import FRTJob  # noqa: E402
 from service.runtime.settings import Settings  # noqa: E402
+from service.wire.schemas import FRTRequest  # noqa: E402
 
 COLLISION_RADIUS_M = 1.5
 MOVING_MPS = 1.0
@@ -120,6 +131,44 @@ def measure(client: TestClient, obs: dict[str, Any], gamma: float, map_id: str |
     }
 
 
+def measure_lanes(
+    client: TestClient, obs: dict[str, Any], gamma: float, margin: float, tolerance: float
+) -> dict:
+    """As :func:`measure`, from the set the service answered ``obs`` from (after its POSTs), cut
+    to the drivable area and the reachable lanes (``reach.road_cut.lane_cut``), to the drivable
+    area alone where the lane assumption does not apply, uncut off the drivable area."""
+    services = client.app.state.services  # type: ignore[attr-defined]
+    road = services.maps.require(MAP_ID).road
+    body = {"timestamp": obs["timestamp"], "state": obs["state"],
+            "prediction": obs["prediction"], "beta": 1.0, "gamma": gamma}  # fmt: skip
+    bounds = request_bounds(services, FRTRequest.model_validate(body))
+    state = obs["state"]
+    pose = Pose(state["x"], state["y"], state["heading"])
+    job = FRTJob.make("", 0, pose, state["speed"], bounds)
+    frt: FRTSet | None = services.cached_exact([job])[0]
+    conservative = frt is None
+    if frt is None:
+        frt = services.conservative(job)
+    assumptions: list[str] = []
+    if road.on_road(pose.x, pose.y, margin):
+        cut = lane_cut(frt, road, margin, tolerance=tolerance)
+        frt = cut if cut is not None else CutSet(frt, road, margin)
+        assumptions = list(frt.assumptions)
+    xy = np.array([[p["x"], p["y"]] for p in obs["future"]])
+    t_rel = np.array([p["t"] for p in obs["future"]]) - obs["timestamp"]
+    d_tube, d_time = frt.clearance(xy), frt.clearance(xy, t_rel)
+    k_set = shape(frt.geojson("tube", None, 0.0)["K"])
+    return {
+        "in_c": float(np.mean(d_tube <= COLLISION_RADIUS_M)),
+        "in_c_time": float(np.mean(d_time <= COLLISION_RADIUS_M)),
+        "in_k_time": float(np.mean(d_time <= 0.0)),
+        "area_c": float(k_set.buffer(COLLISION_RADIUS_M, quad_segs=8).area),
+        "area_k": float(k_set.area),
+        "assumptions": assumptions,
+        "conservative": conservative,
+    }
+
+
 def _post(client: TestClient, body: dict[str, Any]) -> dict[str, Any]:
     r = client.post("/v1/frt", json=body)
     if r.status_code != 200:
@@ -143,12 +192,15 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "coverage_k_time_indexed": round(mean("in_k_time"), 5),
         "mean_area_c_m2": round(mean("area_c"), 2),
         "mean_area_k_m2": round(mean("area_k"), 2),
-        "cut": sum(r["assumptions"] == ["drivable_area"] for r in rows),
+        "cut": sum("drivable_area" in r["assumptions"] for r in rows),
+        "lanes": sum(REACHABLE_LANES in r["assumptions"] for r in rows),
         "conservative": sum(r["conservative"] for r in rows),
     }
 
 
-def run(client: TestClient, obs: list[dict[str, Any]], gamma: float, margin: float) -> dict:
+def run(
+    client: TestClient, obs: list[dict[str, Any]], gamma: float, margin: float, tolerance: float
+) -> dict:
     """Every observation with and without the map at ``gamma``: the summaries of all vehicles, of
     the moving ones, and of the moving ones observed inside the map's extent."""
     x0, y0, x1, y1 = client.get(f"/v1/maps/{MAP_ID}").json()["extent"]
@@ -159,25 +211,37 @@ def run(client: TestClient, obs: list[dict[str, Any]], gamma: float, margin: flo
             r["speed"] >= MOVING_MPS and x0 <= r["x"] <= x1 and y0 <= r["y"] <= y1
         ),
     }
-    rows: dict[str, list[dict[str, Any]]] = {"without_map": [], "with_map": []}
+    rows: dict[str, list[dict[str, Any]]] = {name: [] for name in VARIANTS}
     for o in obs:
-        for name, map_id in (("without_map", None), ("with_map", MAP_ID)):
-            row = measure(client, o, gamma, map_id)
+        found = {
+            "without_map": measure(client, o, gamma, None),
+            "with_map": measure(client, o, gamma, MAP_ID),
+            "with_lanes": measure_lanes(client, o, gamma, margin, tolerance),
+        }
+        for name, row in found.items():
             state = o["state"]
             row.update(track_id=o["track_id"], t=o["timestamp"], speed=state["speed"])
             row.update(x=state["x"], y=state["y"])
             rows[name].append(row)
-    out: dict[str, Any] = {"margin_m": margin, "gamma": gamma, "beta": 1.0}
+    out: dict[str, Any] = {"margin_m": margin, "gamma": gamma, "beta": 1.0,
+                           "heading_tolerance_deg": round(math.degrees(tolerance), 3)}  # fmt: skip
     for group, keep in groups.items():
         out[group] = {name: summary([r for r in rs if keep(r)]) for name, rs in rows.items()}
-        without, with_map = out[group]["without_map"], out[group]["with_map"]
-        out[group]["area_c_change"] = round(
-            with_map["mean_area_c_m2"] / without["mean_area_c_m2"] - 1.0, 4
-        )
-        out[group]["coverage_c_change_points"] = round(
-            100.0 * (with_map["coverage_c_time_indexed"] - without["coverage_c_time_indexed"]), 3
-        )
+        without = out[group]["without_map"]
+        for name in ("with_map", "with_lanes"):
+            cut = out[group][name]
+            suffix = "" if name == "with_map" else "_lanes"
+            out[group]["area_c_change" + suffix] = round(
+                cut["mean_area_c_m2"] / without["mean_area_c_m2"] - 1.0, 4
+            )
+            out[group]["coverage_c_change_points" + suffix] = round(
+                100.0 * (cut["coverage_c_time_indexed"] - without["coverage_c_time_indexed"]), 3
+            )
     return out
+
+
+#: Each observation's answers: uncut, cut to the drivable area, cut to it and the lanes.
+VARIANTS = ("without_map", "with_map", "with_lanes")
 
 
 GROUPS = {
@@ -191,20 +255,29 @@ def table(results: list[dict[str, Any]], group: str = "moving") -> str:
         f"{GROUPS[group]}, confidence off (beta = 1); coverage: actual positions of the next 3 s "
         "inside C at their time (in the whole-horizon C)",
         "",
-        "| margin (m) | γ | observations | coverage without map | coverage with map "
-        "| change (points) | mean area of C without map (m²) | with map (m²) | change |",
-        "| ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |",
+        "| margin (m) | γ | assumptions | observations (lanes apply) | coverage "
+        "| change (points) | mean area of C (m²) | change |",
+        "| ---: | ---: | --- | ---: | ---: | ---: | ---: | ---: |",
     ]
+    labels = {"without_map": "none", "with_map": "drivable_area",
+              "with_lanes": "drivable_area, reachable_lanes"}  # fmt: skip
     for r in results:
         m = r[group]
-        a, b = m["without_map"], m["with_map"]
-        lines.append(
-            f"| {r['margin_m']:g} | {r['gamma']:g} | {a['observations']} "
-            f"| {a['coverage_c_time_indexed']:.2%} ({a['coverage_c_tube']:.2%}) "
-            f"| {b['coverage_c_time_indexed']:.2%} ({b['coverage_c_tube']:.2%}) "
-            f"| {m['coverage_c_change_points']:+.2f} | {a['mean_area_c_m2']:.1f} "
-            f"| {b['mean_area_c_m2']:.1f} | {m['area_c_change']:+.1%} |"
-        )
+        for name in VARIANTS:
+            a = m[name]
+            suffix = "_lanes" if name == "with_lanes" else ""
+            change = (
+                ("—", "—")
+                if name == "without_map"
+                else (f"{m['coverage_c_change_points' + suffix]:+.2f}",
+                      f"{m['area_c_change' + suffix]:+.1%}")
+            )  # fmt: skip
+            count = f"{a['observations']}" + (f" ({a['lanes']})" if suffix else "")
+            lines.append(
+                f"| {r['margin_m']:g} | {r['gamma']:g} | {labels[name]} | {count} "
+                f"| {a['coverage_c_time_indexed']:.2%} ({a['coverage_c_tube']:.2%}) "
+                f"| {change[0]} | {a['mean_area_c_m2']:.1f} | {change[1]} |"
+            )
     return "\n".join(lines)
 
 
@@ -213,6 +286,12 @@ def main() -> None:
     parser.add_argument("--gammas", default="0.075,0.8,0.99", help="comma-separated")
     parser.add_argument(
         "--margins", default="1,0.5,0", help="FRT_MAP_MARGIN_M (m), comma-separated"
+    )
+    parser.add_argument(
+        "--heading-tolerance",
+        type=float,
+        default=math.degrees(HEADING_TOLERANCE),
+        help="degrees: a lane holding the car is a start lane within this of its heading",
     )
     parser.add_argument("--out", type=Path, default=OUT)
     args = parser.parse_args()
@@ -223,7 +302,8 @@ def main() -> None:
             wait_ready(client)
             ranges = client.get("/v1/model").json()["ranges"]
             obs = observations(av2.load_tracks(), float(ranges.get("v_start", [0, math.inf])[1]))
-            results += [run(client, obs, gamma, margin) for gamma in gammas]
+            tolerance = math.radians(args.heading_tolerance)
+            results += [run(client, obs, gamma, margin, tolerance) for gamma in gammas]
     tables = [table(results, group) for group in GROUPS]
     print("\n\n".join(tables))
     args.out.write_text(json.dumps({

@@ -21,7 +21,10 @@ from shapely.affinity import rotate, translate
 from shapely.geometry import Point, box, shape
 
 from reach.footprint import MAX_DISCS, disc_centres, disc_cover, footprint_distances
+from service.flows.check_points import CheckPoints, check_points
+from service.runtime.settings import Settings
 from service.wire.batch_body import parse_batch_check
+from service.wire.errors import FieldError
 from service.wire.schemas import CollisionCheckRequest, MultiCollisionCheckRequest
 from tests.conftest import LiveServer
 
@@ -414,3 +417,73 @@ def test_the_bulk_parser_leaves_a_bad_rest_of_the_body_to_the_model() -> None:
     ):
         assert parse_batch_check(json.dumps(body).encode(), CollisionCheckRequest) is None
     assert parse_batch_check(b'{"trajectories": [{"t": [NaN]', CollisionCheckRequest) is None
+
+
+def test_a_body_with_booleans_elsewhere_is_read_in_bulk_as_the_model_reads_it() -> None:
+    body = {
+        "trajectories": [
+            {"t": [0.0, 0.1], "x": [1.0, 2.0], "y": [3, 4]},
+            {"t": [0.0, 0.1], "x": [5.0, 6.0], "y": [7.0, 8.0]},
+        ],
+        "include_clearance": True,
+        "agent_ids": ["true-car"],
+    }
+    raw = json.dumps(body).encode()
+    bulk = parse_batch_check(raw, MultiCollisionCheckRequest)
+    model = MultiCollisionCheckRequest.model_validate_json(raw)
+    assert bulk is not None and bulk.include_clearance
+    assert [np.asarray(p.y).tolist() for p in bulk.trajectories] == [
+        p.y for p in model.trajectories
+    ]
+
+
+def _points_of(body: dict) -> tuple[CheckPoints | None, FieldError | None]:
+    """check_points of ``body`` read in bulk and read by the model (the same or both raising)."""
+    raw = json.dumps(body).encode()
+    bulk = parse_batch_check(raw, MultiCollisionCheckRequest)
+    assert bulk is not None
+    limits = Settings(max_trajectory_points=3, max_trajectories=3)
+    found = []
+    for request in (bulk, MultiCollisionCheckRequest.model_validate_json(raw)):
+        try:
+            found.append((check_points(request, limits), None))
+        except FieldError as error:
+            found.append((None, error))
+    (ours, our_error), (theirs, their_error) = found
+    if our_error is not None or their_error is not None:
+        assert our_error is not None and their_error is not None
+        assert (our_error.field, str(our_error)) == (their_error.field, str(their_error))
+        return None, our_error
+    assert ours is not None and theirs is not None
+    for key in ("xy", "times", "starts", "headings"):
+        np.testing.assert_array_equal(getattr(ours, key), getattr(theirs, key))
+    assert ours.cover == theirs.cover
+    return ours, None
+
+
+@pytest.mark.parametrize(
+    "change",
+    [
+        {},
+        {"footprint": {"length": 4.0, "width": 2.0}},  # a trajectory without headings
+        {"trajectories": [{"t": [0.0, 0.1, 0.2, 0.3], "x": [0.0] * 4, "y": [0.0] * 4}]},
+        {"trajectories": [{"t": [0.0], "x": [0.0], "y": [0.0]}] * 4},
+    ],
+)
+def test_a_batch_read_in_bulk_has_the_models_points_and_errors(change: dict) -> None:
+    body = {
+        "trajectories": [
+            {
+                "t": [0.0, 0.1, 0.2],
+                "x": [1.0, 2.0, 3.0],
+                "y": [0.0, 0.5, 1.0],
+                "heading": [0.1] * 3,
+            },
+            {"t": [0.5], "x": [-1.0], "y": [2.0]},
+        ],
+        **change,
+    }
+    points, error = _points_of(body)
+    assert (error is None) == (change == {})
+    if points is not None:
+        assert points.starts.tolist() == [0, 3]

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from reach.footprint import DiscCover, disc_centres, disc_cover, footprint_distances
+from service.wire.batch_body import ColumnBatch
 from service.wire.errors import FieldError
 from service.wire.limits import RequestLimits, check_length, check_trajectory
 from service.wire.schemas import CollisionCheckRequest, TrajectoryColumns, TrajectoryPoint
@@ -63,6 +64,8 @@ class CheckPoints:
 def check_points(request: CollisionCheckRequest, limits: RequestLimits) -> CheckPoints:
     """The points of ``request`` (its ``trajectory`` or its ``trajectories``), checked against the
     server's limits and, with a footprint, for a heading at every point: 422 naming the field."""
+    if isinstance(request.trajectories, ColumnBatch):
+        return _batch_points(request, request.trajectories, limits)
     if request.trajectories is not None:
         field, parts = "trajectories", list(request.trajectories)
         check_length(field, parts, limits.max_trajectories)
@@ -73,18 +76,7 @@ def check_points(request: CollisionCheckRequest, limits: RequestLimits) -> Check
         for k, p in enumerate(parts)
     ]
     lengths = np.array([len(c[0]) for c in columns])
-    total = int(lengths.sum())
-    cover = None
-    if request.footprint is not None:
-        fp = request.footprint
-        cover = disc_cover(fp.length, fp.width, fp.rear_axle_to_center)
-    probes = total * (1 if cover is None else cover.count)
-    if probes > limits.max_check_points:
-        raise FieldError(
-            field,
-            f"{total} points{'' if cover is None else f' x {cover.count} footprint discs'} "
-            f"exceed the {limits.max_check_points} one check may measure",
-        )
+    cover = _cover(request, field, int(lengths.sum()), limits)
     headings = None
     if cover is not None:
         headings = np.concatenate(
@@ -104,6 +96,55 @@ def check_points(request: CollisionCheckRequest, limits: RequestLimits) -> Check
         batch=request.trajectories is not None,
         headings=headings,
     )
+
+
+def _batch_points(
+    request: CollisionCheckRequest, batch: ColumnBatch, limits: RequestLimits
+) -> CheckPoints:
+    """:func:`check_points` of a batch read in bulk: the same checks on its flat columns, in the
+    same order, naming the same fields."""
+    check_length("trajectories", batch, limits.max_trajectories)
+    too_long = np.flatnonzero(batch.lengths > limits.max_trajectory_points)
+    if len(too_long):
+        k = int(too_long[0])
+        check_trajectory(f"trajectories.{k}", batch.t[: batch.lengths[k]], limits)
+    cover = _cover(request, "trajectories", len(batch.t), limits)
+    headings = None
+    if cover is not None:
+        unheaded = np.flatnonzero(~batch.headed)
+        if len(unheaded):
+            raise FieldError(
+                f"trajectories.{int(unheaded[0])}.heading",
+                "a footprint needs a heading at every point",
+            )
+        headings = batch.heading
+    return CheckPoints(
+        xy=np.stack([batch.x, batch.y], axis=1),
+        times=batch.t,
+        starts=batch.starts,
+        cover=cover,
+        batch=True,
+        headings=headings,
+    )
+
+
+def _cover(
+    request: CollisionCheckRequest, field: str, total: int, limits: RequestLimits
+) -> DiscCover | None:
+    """The footprint's disc cover (None without one), once the ``total`` points, with their
+    discs, are known to be within what one check may measure."""
+    cover = None
+    if request.footprint is not None:
+        fp = request.footprint
+        cover = disc_cover(fp.length, fp.width, fp.rear_axle_to_center)
+    probes = total * (1 if cover is None else cover.count)
+    if probes > limits.max_check_points:
+        raise FieldError(
+            field,
+            f"{total} points{'' if cover is None else f' x {cover.count} footprint discs'} "
+            f"exceed the {limits.max_check_points} one check may measure",
+        )
+    return cover
 
 
 Columns = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | list[float | None] | None]
@@ -158,19 +199,28 @@ def trajectory_answers(
         np.where(clearance < 0.0, rows[None, :], points.n_points), starts, axis=1
     )
     hit = first < ends[None, :]
-    at = np.where(hit, first, 0)
-    index = np.where(hit, at - starts[None, :], -1).tolist()
-    time = points.times[at].tolist()
     answers = []
-    for a, hits in enumerate(hit.tolist()):
+    for a, least in enumerate(minimum):
+        # Only the colliding trajectories carry an index and a time: filled in where they are.
+        index: list[int | None] = [None] * len(starts)
+        time: list[float | None] = [None] * len(starts)
+        collided = np.flatnonzero(hit[a])
+        at = first[a, collided]
+        for k, i, t in zip(
+            collided.tolist(),
+            (at - starts[collided]).tolist(),
+            points.times[at].tolist(),
+            strict=True,
+        ):
+            index[k], time[k] = i, t
         agent = [
             {
-                "collision": collided,
-                "first_collision_index": k if collided else None,
-                "first_collision_time": t if collided else None,
+                "collision": i is not None,
+                "first_collision_index": i,
+                "first_collision_time": t,
                 "min_clearance": m,
             }
-            for collided, k, t, m in zip(hits, index[a], time[a], minimum[a], strict=True)
+            for i, t, m in zip(index, time, least, strict=True)
         ]
         if include_clearance:
             per_point = clearance[a].tolist()

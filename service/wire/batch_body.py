@@ -1,4 +1,4 @@
-"""A batch check's body read in bulk: its trajectories' columns as numpy arrays.
+"""A batch check's body read in bulk: its trajectories' columns as flat numpy arrays.
 
 A batch of 500 trajectories of 30 points is 45 000 numbers; validating each as a pydantic float
 costs more than the check itself. :func:`parse_batch_check` reads the body with orjson, checks the
@@ -7,12 +7,17 @@ per trajectory, the schema's caps) and validates the rest of the body with the m
 None for any body it does not take whole (the point form, a missing or malformed column, a wrong
 type anywhere): the model's own parser then reads it and names what is wrong, so a rejected body
 is answered exactly as without this path.
+
+The columns it takes stay flat (:class:`ColumnBatch`): a check reads every trajectory's points
+from them at once, and a trajectory as :class:`TrajectoryColumns` is made only where one is read
+on its own.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator, Sequence
 from itertools import chain
-from typing import Any, TypeVar
+from typing import Any, TypeVar, overload
 
 import numpy as np
 import orjson
@@ -33,18 +38,63 @@ M = TypeVar("M", bound=BaseModel)
 LIMITS = {"t": TIME_MAX, "x": COORD_MAX, "y": COORD_MAX, "heading": ANGLE_MAX}
 #: What the model sees in place of the columns while it validates the rest of the body.
 PLACEHOLDER = [{"t": [0.0], "x": [0.0], "y": [0.0]}]
+#: JSON's booleans: a body without these tokens has no boolean among its numbers.
+BOOLEANS = (b"true", b"false")
+
+
+class ColumnBatch(Sequence[TrajectoryColumns]):
+    """A batch's trajectories as flat columns: ``t``, ``x``, ``y`` ``[P]`` of every point in
+    order, trajectory k being points ``starts[k]:starts[k] + lengths[k]``; ``heading`` ``[P]``
+    where ``headed[k]`` (NaN in the trajectories without one). Item k is trajectory k as
+    :class:`TrajectoryColumns` (the columns numpy views)."""
+
+    def __init__(
+        self,
+        columns: dict[str, np.ndarray],
+        lengths: np.ndarray,
+        headed: np.ndarray,
+    ) -> None:
+        self.t, self.x, self.y, self.heading = (columns[k] for k in ("t", "x", "y", "heading"))
+        self.lengths = lengths
+        self.headed = headed
+        self.starts = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.intp)
+
+    def __len__(self) -> int:
+        return len(self.lengths)
+
+    @overload
+    def __getitem__(self, k: int) -> TrajectoryColumns: ...
+
+    @overload
+    def __getitem__(self, k: slice) -> list[TrajectoryColumns]: ...
+
+    def __getitem__(self, k: int | slice) -> TrajectoryColumns | list[TrajectoryColumns]:
+        if isinstance(k, slice):
+            return [self[i] for i in range(*k.indices(len(self)))]
+        k = range(len(self))[k]
+        a = int(self.starts[k])
+        b = a + int(self.lengths[k])
+        return TrajectoryColumns.model_construct(
+            t=self.t[a:b],
+            x=self.x[a:b],
+            y=self.y[a:b],
+            heading=self.heading[a:b] if self.headed[k] else None,
+        )
+
+    def __iter__(self) -> Iterator[TrajectoryColumns]:
+        return (self[k] for k in range(len(self)))
 
 
 def parse_batch_check(raw: bytes, model: type[M]) -> M | None:
-    """``raw`` as ``model`` (a check body) with its ``trajectories`` as columns of numpy arrays,
-    or None where the bulk path does not take the body (see the module docstring)."""
+    """``raw`` as ``model`` (a check body) with its ``trajectories`` a :class:`ColumnBatch`, or
+    None where the bulk path does not take the body (see the module docstring)."""
     try:
         data = orjson.loads(raw)
     except orjson.JSONDecodeError:
         return None
     if not isinstance(data, dict):
         return None
-    columns = _columns(data.get("trajectories"))
+    columns = _columns(data.get("trajectories"), strict=any(b in raw for b in BOOLEANS))
     if columns is None:
         return None
     try:
@@ -54,57 +104,63 @@ def parse_batch_check(raw: bytes, model: type[M]) -> M | None:
     return request.model_copy(update={"trajectories": columns})
 
 
-def _columns(batch: Any) -> list[TrajectoryColumns] | None:
+def _columns(batch: Any, strict: bool) -> ColumnBatch | None:
+    """The batch's columns, or None unless every trajectory is a dict of the columns t, x, y and
+    perhaps heading, each a list of one length (1 to the cap) of numbers within its limit.
+    ``strict``: the body may hold booleans, so each number's type is checked one by one."""
     if not isinstance(batch, list) or not 1 <= len(batch) <= TRAJECTORIES_CAP:
         return None
-    if not all(type(part) is dict for part in batch):
+    if set(map(type, batch)) != {dict}:
         return None
-    keys = ("t", "x", "y")
-    with_heading = ["heading" in part for part in batch]
-    for part, headed in zip(batch, with_heading, strict=True):
-        if len(part) != 3 + headed or not all(key in part for key in keys):
-            return None
-    flat = {key: _flat(key, [part[key] for part in batch]) for key in keys}
-    headed = [part["heading"] for part in batch if "heading" in part]
-    heading = _flat("heading", headed) if headed else np.zeros(0)
-    lengths = [len(part["t"]) for part in batch]
-    if any(v is None for v in flat.values()) or heading is None:
+    sizes = np.fromiter(map(len, batch), dtype=np.intp, count=len(batch))
+    headed = sizes == 4
+    try:
+        lists = {key: [part[key] for part in batch] for key in ("t", "x", "y")}
+        headings = [part["heading"] for part in batch if len(part) == 4]
+    except KeyError:
         return None
-    for part, n in zip(batch, lengths, strict=True):
-        if not 1 <= n <= TRAJECTORY_POINTS_CAP or any(len(part[key]) != n for key in part):
+    if not ((sizes == 3) | headed).all():
+        return None
+    lists["heading"] = headings
+    if any(set(map(type, values)) - {list} for values in lists.values()):
+        return None
+    lengths = np.fromiter(map(len, lists["t"]), dtype=np.intp, count=len(batch))
+    if not ((lengths >= 1) & (lengths <= TRAJECTORY_POINTS_CAP)).all():
+        return None
+    for key in ("x", "y"):
+        if not np.array_equal(np.fromiter(map(len, lists[key]), dtype=np.intp), lengths):
             return None
-    return _split(flat, heading, lengths, with_heading)
+    if not np.array_equal(np.fromiter(map(len, headings), dtype=np.intp), lengths[headed]):
+        return None
+    flat = {key: _flat(key, lists[key], strict) for key in lists}
+    if any(v is None for v in flat.values()):
+        return None
+    heading = np.full(int(lengths.sum()), np.nan)
+    heading[np.repeat(headed, lengths)] = flat["heading"]
+    return ColumnBatch({**flat, "heading": heading}, lengths, headed)  # type: ignore[dict-item]
 
 
-def _flat(key: str, lists: list[Any]) -> np.ndarray | None:
-    """The numbers of ``lists`` in one array, or None unless each is a list of finite ints and
-    floats within the column's limit."""
-    if not all(type(values) is list for values in lists):
-        return None
-    if not set(map(type, chain.from_iterable(lists))) <= {float, int}:
-        return None
-    values = np.fromiter(chain.from_iterable(lists), dtype=np.float64)
+def _flat(key: str, lists: list[list[Any]], strict: bool) -> np.ndarray | None:
+    """The numbers of ``lists`` in one array, or None unless each is a finite int or float within
+    the column's limit. Lists of one length are read by one ``np.array`` call, which infers a
+    float or int dtype only where every item is a number or a boolean (the caller rules booleans
+    out, or asks for each type to be checked: ``strict``)."""
+    if not lists:
+        return np.zeros(0)
+    values = None
+    if not strict and len(set(map(len, lists))) == 1:
+        try:
+            array = np.array(lists)
+        except (ValueError, TypeError, OverflowError):
+            return None
+        if array.ndim == 2 and array.dtype.kind in "fi":
+            values = array.astype(np.float64).reshape(-1)
+        elif array.dtype.kind not in "O":
+            return None
+    if values is None:
+        if not set(map(type, chain.from_iterable(lists))) <= {float, int}:
+            return None
+        values = np.fromiter(chain.from_iterable(lists), dtype=np.float64)
     if not (np.isfinite(values).all() and (np.abs(values) <= LIMITS[key]).all()):
         return None
     return values
-
-
-def _split(
-    flat: dict[str, np.ndarray],
-    heading: np.ndarray,
-    lengths: list[int],
-    with_heading: list[bool],
-) -> list[TrajectoryColumns]:
-    out, start, heading_start = [], 0, 0
-    for n, headed in zip(lengths, with_heading, strict=True):
-        end = start + n
-        out.append(
-            TrajectoryColumns.model_construct(
-                t=flat["t"][start:end],
-                x=flat["x"][start:end],
-                y=flat["y"][start:end],
-                heading=heading[heading_start : heading_start + n] if headed else None,
-            )
-        )
-        start, heading_start = end, heading_start + (n if headed else 0)
-    return out

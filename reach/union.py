@@ -26,7 +26,7 @@ from reach.box_tubes import box_tubes_of
 from reach.engine import FRTEngine
 from reach.frames import Pose
 from reach.outer_bound import outer_boxes
-from reach.sets import FRTSet
+from reach.sets import BoxTubeSet, FRTSet
 
 
 class UnionSet(FRTSet):
@@ -84,6 +84,19 @@ class UnionSet(FRTSet):
             return j
         built = [k for k in self._tubes if k >= j]
         return min(built) if built else self.n_slices - 1
+
+
+def box_members(frt: FRTSet) -> list[BoxTubeSet]:
+    """The box sets whose least distance at each point is ``frt``'s clearance there: ``frt``
+    itself if it is one, a union's members if they all are (it measures by its members), else
+    none."""
+    if isinstance(frt, BoxTubeSet):
+        return [frt]
+    if isinstance(frt, UnionSet) and not frt.clearance_from_tubes:
+        members = list(frt.members)
+        if members and all(isinstance(m, BoxTubeSet) for m in members):
+            return members  # type: ignore[return-value]
+    return []
 
 
 def exact_union(engine: FRTEngine, pose: Pose, v_start: float, bounds: np.ndarray) -> UnionSet:

@@ -19,6 +19,7 @@ from service.flows.confidence import (
     Belief,
     hypotheses,
     prior_belief,
+    stored_estimates,
     transition,
     update_belief,
 )
@@ -175,6 +176,22 @@ def test_beliefs_are_distributions_and_beta_is_in_range(beta_low, n, eps, steps)
         assert beta_low <= belief.beta <= 1.0
     stored = json.dumps(belief.to_dict(), allow_nan=False)
     assert Belief.from_dict(json.loads(stored)) == belief
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.tuples(st.integers(2, 6), st.integers(0, 2**32 - 1)), min_size=1, max_size=9))
+def test_stored_beliefs_estimates_together_are_each_ones_own(shapes) -> None:
+    """``stored_estimates`` of beliefs of several sizes at once: bit for bit each stored
+    belief's own ``beta`` read back alone."""
+    stored = []
+    for n, seed in shapes:
+        rng = np.random.default_rng(seed)
+        belief = prior_belief(hypotheses(float(rng.uniform(0.01, 0.5)), n))
+        for _ in range(int(rng.integers(0, 5))):
+            action = rng.normal(0.0, 3.0, size=2) * SIGMA
+            belief = update_belief(belief, action, MEAN, COV, float(rng.uniform(0.0, 0.3)))
+        stored.append(json.loads(json.dumps(belief.to_dict())))
+    assert stored_estimates(stored) == [Belief.from_dict(b).beta for b in stored]
 
 
 # --- far outliers ----------------------------------------------------------------------------

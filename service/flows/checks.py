@@ -17,16 +17,16 @@ import time
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
-from functools import lru_cache
 from typing import Any
 
 import numpy as np
 
 from reach.batch import Reduction, box_clearances, trajectory_surrogates_of, tube_clearances
-from reach.sets import BoxTubeSet, FRTSet
+from reach.sets import FRTSet
+from reach.union import box_members
 from service.flows.agent_config import AgentConfig
 from service.flows.check_points import CheckPoints, check_points, check_work, trajectory_answers
-from service.flows.confidence import Belief
+from service.flows.confidence import stored_estimates
 from service.runtime.answer_cost import AnswerCosts
 from service.runtime.jobs import FRTJob
 from service.runtime.services import Services
@@ -92,12 +92,6 @@ def clearance_rows(distance_to_k: np.ndarray, radii: np.ndarray) -> tuple[np.nda
     clearance = np.clip(distance, -CLEARANCE_LIMIT, CLEARANCE_LIMIT)
     hit = clearance < 0.0
     return clearance, np.where(hit.any(axis=1), hit.argmax(axis=1), -1)
-
-
-@lru_cache(maxsize=512)
-def _beta(betas: tuple[float, ...], log_probs: tuple[float, ...]) -> float:
-    """beta of a stored belief (a planner checks each agent's state many times: validated once)."""
-    return Belief.from_dict({"betas": betas, "log_probs": log_probs}).beta
 
 
 def wait_budget_s(arrival: float, deadline_ms: float, settings: Settings) -> float:
@@ -256,9 +250,11 @@ def _conservative_distances(
     """The set each agent is answered from (its exact set, else its conservative one), and the
     clearances of the agents answered from box sets, all in one numpy pass."""
     conservative = {i: services.conservative(jobs[i]) for i, frt in enumerate(exact) if frt is None}
-    boxes = {i: s for i, s in conservative.items() if isinstance(s, BoxTubeSet)}
-    measured = box_clearances(list(boxes.values()), xy, [t_rel[i] for i in boxes])
-    distances = dict(zip(boxes, measured, strict=True))
+    members = [(i, box) for i, frt in conservative.items() for box in box_members(frt)]
+    measured = box_clearances([box for _, box in members], xy, [t_rel[i] for i, _ in members])
+    distances: dict[int, np.ndarray] = {}
+    for (i, _), found in zip(members, measured, strict=True):  # a union's: its members' least
+        distances[i] = found if i not in distances else np.minimum(distances[i], found)
     chosen = {i: frt if frt is not None else conservative[i] for i, frt in enumerate(exact)}
     return chosen, distances
 
@@ -315,12 +311,14 @@ def _note_tube_demand(
 ) -> None:
     """Tell the workers which tubes of each agent's next sets this check would have needed
     (``service.runtime.tube_demand``): the largest tube index of its points, 0 for a whole-tube
-    check (the engine draws the whole tube itself)."""
-    demand = services.tube_demand
-    for i, state in enumerate(states):
-        times = t_rel[i]
-        largest = 0 if times is None or not len(times) else int(sets[i].tube_indices(times).max())
-        demand.note(state.agent_id, largest)
+    check (the engine draws the whole tube itself): the tube of its latest time, as tube
+    indices grow with time."""
+    services.tube_demand.note_many(
+        [
+            (state.agent_id, 0 if t is None or not len(t) else sets[i].tube_index(float(t.max())))
+            for i, (state, t) in enumerate(zip(states, t_rel, strict=True))
+        ]
+    )
 
 
 def _answer_in_time(
@@ -489,12 +487,12 @@ def _respond_all(
     times = points.times
     horizon = services.horizon_s()
     _count_sources(services, exact, coarse)
+    betas = stored_estimates([state.belief for state in states])
     results = []
     for i, state in enumerate(states):
         conservative = exact[i] is None or i in coarse
         index = int(first[i]) if first[i] >= 0 else None
         batch = None if batches is None else batches[i]
-        belief = state.belief
         # Built from values of the right types: no second validation of every clearance.
         results.append(
             CollisionCheckResponse.model_construct(
@@ -507,7 +505,7 @@ def _respond_all(
                 agent_id=state.agent_id,
                 mode=request.mode,
                 collision_radius=float(radii[i]),
-                beta=_beta(tuple(belief["betas"]), tuple(belief["log_probs"])),
+                beta=betas[i],
                 frt_version=state.frt_version,
                 conservative=conservative,
                 horizon_end=state.timestamp + horizon,

@@ -21,6 +21,7 @@ filter recover from it in a bounded number of observations (see docs/confidence.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property, lru_cache
 from typing import Any
@@ -87,6 +88,22 @@ def point_estimates(betas: np.ndarray, log_probs: np.ndarray) -> np.ndarray:
     betas = np.broadcast_to(betas, log_probs.shape)
     estimate = (betas * probability_rows(log_probs)).sum(axis=-1)
     return np.clip(estimate, betas[..., 0], betas[..., -1])
+
+
+def stored_estimates(beliefs: Sequence[dict[str, Any]]) -> list[float]:
+    """The point estimate of each stored belief (``Belief.to_dict``'s form, normalised at
+    storage): bit for bit ``Belief.from_dict(b).beta``, the beliefs with as many hypotheses
+    computed as the rows of one array."""
+    out = [0.0] * len(beliefs)
+    groups: dict[int, list[int]] = {}
+    for i, belief in enumerate(beliefs):
+        groups.setdefault(len(belief["betas"]), []).append(i)
+    for members in groups.values():
+        betas = np.array([beliefs[i]["betas"] for i in members], dtype=np.float64)
+        log_probs = np.array([beliefs[i]["log_probs"] for i in members], dtype=np.float64)
+        for i, estimate in zip(members, point_estimates(betas, log_probs).tolist(), strict=True):
+            out[i] = estimate
+    return out
 
 
 def transition_rows(

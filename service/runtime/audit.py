@@ -41,6 +41,7 @@ from reach.batch import tube_clearances
 from reach.distances import box_union_distances
 from reach.frames import paired_human_frames
 from reach.sets import BoxTubeSet, FRTSet
+from reach.union import box_members
 from service.runtime.metrics import Metrics
 from service.runtime.scheduler import FRTKey
 
@@ -252,16 +253,9 @@ def score_many(
 
 
 def _boxes_of(frt: FRTSet, exact: bool) -> list[BoxTubeSet]:
-    """The box sets whose least distance is ``frt``'s (itself, or a union's members), if it is
-    made of them."""
-    if exact:
-        return []
-    if isinstance(frt, BoxTubeSet):
-        return [frt]
-    members = getattr(frt, "members", None)
-    if members and not frt.clearance_from_tubes and all(isinstance(m, BoxTubeSet) for m in members):
-        return list(members)
-    return []
+    """The box sets whose least distance is ``frt``'s (``reach.union.box_members``), unless
+    it is measured as an exact set."""
+    return [] if exact else box_members(frt)
 
 
 #: Box sets :func:`_box_distances` measures in one pass: its [sets, boxes] temporaries stay in the

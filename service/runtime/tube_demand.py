@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import threading
 from collections import OrderedDict
+from collections.abc import Sequence
 
 #: ``upto`` of an agent no time-indexed check has named yet: no tube beyond the whole one.
 NO_TUBES = -1
@@ -31,10 +32,15 @@ class TubeDemand:
 
     def note(self, agent_id: str, largest_index: int) -> None:
         """A check of ``agent_id`` needed tubes up to ``largest_index`` (0: none but the first)."""
+        self.note_many([(agent_id, largest_index)])
+
+    def note_many(self, needed: Sequence[tuple[str, int]]) -> None:
+        """:meth:`note` of each (agent, largest index) of one check."""
         with self._lock:
-            known = self._largest.get(agent_id, -1)
-            self._largest[agent_id] = max(known, int(largest_index))
-            self._largest.move_to_end(agent_id)
+            for agent_id, largest_index in needed:
+                known = self._largest.get(agent_id, -1)
+                self._largest[agent_id] = max(known, int(largest_index))
+                self._largest.move_to_end(agent_id)
             while len(self._largest) > self._size:
                 self._largest.popitem(last=False)
 

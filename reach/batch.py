@@ -11,6 +11,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 from shapely.geometry.base import BaseGeometry
 
@@ -122,8 +123,10 @@ def trajectory_surrogates_of(
     n = xy_world.shape[0]
     out = []
     for a, (frt, t) in enumerate(zip(sets, t_rel, strict=True)):
-        index = np.full(n, frt.n_slices - 1) if t is None else frt.tube_indices(t)
-        tubes, which = frt.tubes_present(index)
+        if t is None:
+            tubes, which = np.array([frt.n_slices - 1]), np.zeros(n, dtype=np.int64)
+        else:
+            tubes, which = tubes_of(frt, t)
         packed = frt.packed_tubes(tuple(tubes.tolist()))
         pose = (frt.pose.x, frt.pose.y, frt.pose.heading)
         if reduction.every_point:
@@ -141,6 +144,35 @@ def trajectory_surrogates_of(
             )
         )
     return out
+
+
+def tubes_of(frt: FRTSet, t_rel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``frt.tubes_present(frt.tube_indices(t_rel))``: the tubes the times need (increasing) and
+    each time's place among them; in one compiled pass (the same arithmetic) where the set keeps
+    :class:`FRTSet`'s definitions of both."""
+    kind = type(frt)
+    if kind.tube_indices is FRTSet.tube_indices and kind.tubes_present is FRTSet.tubes_present:
+        times = np.asarray(t_rel, dtype=np.float64).reshape(-1)
+        which = np.empty(len(times), dtype=np.int64)
+        present = _tubes_present(times, frt.slice_dt, frt.horizon_s, frt.n_slices, which)
+        return np.flatnonzero(present), which
+    return frt.tubes_present(frt.tube_indices(t_rel))
+
+
+@numba.njit(cache=True)
+def _tubes_present(times, slice_dt, horizon_s, n_slices, which):
+    """``FRTSet.tube_indices`` (clip to [0, horizon], ceil(t / dt - 1e-9), at most the last) and
+    ``FRTSet.tubes_present`` of ``times``: the mask of tubes present, each time's place among
+    them into ``which``."""
+    present = np.zeros(n_slices, dtype=np.bool_)
+    for i in range(len(times)):
+        t = min(max(times[i], 0.0), horizon_s)
+        which[i] = int(min(np.ceil(t / slice_dt - 1e-9), n_slices - 1))
+        present[which[i]] = True
+    rank = np.cumsum(present) - 1
+    for i in range(len(times)):
+        which[i] = rank[which[i]]
+    return present
 
 
 def tube_clearances(

@@ -17,6 +17,7 @@ from hypothesis import strategies as st
 from shapely.geometry import MultiPolygon, Polygon
 from shapely.geometry.base import BaseGeometry
 
+from reach.batch import tubes_of
 from reach.distances import signed_distance
 from reach.frames import Pose, human_frames
 from reach.packed_rings import (
@@ -26,6 +27,7 @@ from reach.packed_rings import (
     signed_distances_packed,
     trajectory_surrogates,
 )
+from reach.sets import FRTSet
 
 
 def star(rng: np.random.Generator, centre: tuple[float, float], size: float, n: int) -> Polygon:
@@ -170,3 +172,23 @@ def test_the_support_bound_is_below_the_distance_and_tighter_than_the_box() -> N
     which = np.zeros(len(xy), dtype=np.int64)
     surrogate = trajectory_surrogates(packed, which, xy, np.array([0]), -10.0)
     assert surrogate.min() == pytest.approx(exact.min(), abs=1e-9)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    grid=st.sampled_from([(0.1, 3.0, 31), (0.25, 3.0, 13), (0.1, 2.0, 21), (0.3, 3.0, 11)]),
+)
+def test_tubes_of_is_the_sets_tube_indices_made_distinct(
+    seed: int, grid: tuple[float, float, int]
+) -> None:
+    rng = np.random.default_rng(seed)
+    slice_dt, horizon, n_slices = grid
+    frt = FRTSet(Pose(0.0, 0.0, 0.0), slice_dt, horizon, n_slices, conservative=False)
+    # Times on and around the slices' instants, before the start and past the horizon.
+    on_grid = slice_dt * rng.integers(-2, n_slices + 3, 200)
+    times = np.concatenate([on_grid, on_grid + rng.normal(0.0, 1e-9, 200), rng.uniform(-1, 4, 200)])
+    tubes, which = tubes_of(frt, times)
+    expected_tubes, expected_which = frt.tubes_present(frt.tube_indices(times))
+    np.testing.assert_array_equal(tubes, expected_tubes)
+    np.testing.assert_array_equal(which, expected_which)

@@ -6,7 +6,7 @@ controls live in (``|u1| <= u1_limit``, ``|u2| <= u2_limit``), the speeds it is 
 collision radius R_col of C = K ⊕ R_col. The certified geometry (``reach.engine.FRTEngine``) is
 built for any bounds, so it serves every class: :func:`engine_for_class` is the engine with the
 class's ranges, sharing the value field, which cuts only where its own trained ranges cover a
-setting (``ValueField.covers``). The sources of the figures are in docs/agent_classes.md.
+setting (``ValueField.covers``). The sources of the figures are in docs/multimodal.md ("Agent classes").
 
 The dynamics have no speed ceiling: a pedestrian accelerating for the whole horizon reaches
 ``v_max + u2_limit * T`` in the set, which contains what a pedestrian capped at ``v_max`` reaches.
@@ -55,7 +55,7 @@ class AgentClass:
 
 
 #: The registry. Car: the paper's limits and the network's trained v_start range. Cyclist and
-#: pedestrian: see docs/agent_classes.md for the sources behind each figure.
+#: pedestrian: see docs/multimodal.md ("Agent classes") for the sources behind each figure.
 AGENT_CLASSES: dict[str, AgentClass] = {
     "car": AgentClass("car", U1_LIMIT, U2_LIMIT, 0.0, V_START_MAX, 1.5),
     "cyclist": AgentClass("cyclist", 1.5, 5.0, 0.0, 12.0, 1.0),

@@ -58,7 +58,7 @@ class Metrics:
             "frt_exact_phase_seconds",
             "Where an exact set's time goes besides its computation (frt_compute_seconds): "
             "queued (submitted until a worker takes it) and transfer (the task to the worker and "
-            "the set back, pickled, while the worker's own timing is not running)",
+            "the set back in its binary layout, while the worker's own timing is not running)",
             ["phase"],
             buckets=LATENCY_BUCKETS,
             registry=r,

@@ -18,7 +18,7 @@ TARGET ?= 0.99
 PROFILE ?= av2
 FIND_LINKS := $(if $(wildcard /opt/wheels),--find-links /opt/wheels,)
 
-.PHONY: venv serve demo viewer-screenshot test lint format train train-smoke evaluate evaluate-full compare-authors network-diagnostics bench bench-batch bench-sustained bench-audit adapter-error load load-scale profile-load scale-test scenarios calibrate rescue plots clean
+.PHONY: venv serve demo viewer-screenshot test lint format train train-smoke evaluate evaluate-full compare-authors network-diagnostics bench bench-batch bench-scene bench-sustained bench-audit adapter-error load load-scale profile-load scale-test scenarios calibrate rescue plots clean
 
 $(RUNTIME): pyproject.toml
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -95,6 +95,12 @@ bench: $(STAMP)
 # checked one by one (results/bench_batch.json).
 bench-batch: $(STAMP)
 	$(BIN)/python scripts/bench_batch.py --model $(MODEL)
+
+# A whole scene on one event loop, in-process: frames of 100 agents and two planners' checks of
+# all of them at 10 Hz; how long a check waits behind frames (BASELINE=REV: that tree too).
+bench-scene: $(STAMP)
+	$(BIN)/python scripts/bench_scene.py --model $(MODEL) --duration 30 \
+		$(if $(BASELINE),--baseline $(BASELINE)) --out results/bench_scene.json
 
 # The SDK adapters' control recovery replayed on the recorded tracks (results/adapter_error.json).
 adapter-error: $(STAMP)

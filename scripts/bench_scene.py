@@ -1,0 +1,181 @@
+"""A whole scene on one event loop, in-process: ``python scripts/bench_scene.py``.
+
+One process builds the service's engine (``Services``, the shipped model, exact sets in worker
+processes as served) and drives, on its own event loop, what a scene sends a replica: every
+``1 / --hz`` seconds one frame of ``--agents`` agents (``scripts/bench_frames.py``'s scene:
+cars, pedestrians and three-mode cars, ``service.flows.frames.apply_frame``), and ``--planners``
+planners each checking a 20-point, 2 s time-indexed trajectory against every agent at ``--hz``
+(``service.flows.checks.check_agents_at_once``, deadline ``--deadline-ms``). Without HTTP and
+without a load harness beside it, what is measured is the event loop's own scheduling: how long a
+check waits behind frames and their audit, from the tick it was due at to its answer.
+
+``--baseline REV`` runs the same scene, in a second process started after this one, on the tree of
+git revision ``REV`` (``git archive`` into a temporary directory); both print one line each and
+``--out`` keeps both.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import random
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent.parent
+SOURCE = Path(os.environ.get("FRT_BENCH_SOURCE", ROOT))
+sys.path.insert(0, str(SOURCE))
+sys.path.insert(1, str(ROOT))
+
+TRAJECTORY_POINTS = 20
+TRAJECTORY_DT = 0.1
+PLANNER_SPEED = 8.0
+
+
+def quantile_ms(values: list[float], q: float) -> float:
+    ordered = sorted(values)
+    return 1e3 * ordered[min(len(ordered) - 1, int(q * len(ordered)))] if ordered else float("nan")
+
+
+async def drive(args: argparse.Namespace) -> dict[str, Any]:
+    """The scene for ``args.duration`` seconds: frame and check latencies, check verdicts."""
+    from scripts.bench_frames import Scene
+    from service.flows import checks, frames
+    from service.runtime.services import Services
+    from service.runtime.settings import Settings
+    from service.wire.schemas import FrameRequest, MultiCollisionCheckRequest
+
+    services = Services.build(Settings(model_path=args.model, log_requests=False))
+    await services.start()
+    while services.engine is None:
+        await asyncio.sleep(0.1)
+    scene, t0 = Scene(args.agents, "agent", 1), time.monotonic()
+    frame_s: list[float] = []
+    check_s: list[float] = []
+    verdicts: dict[str, int] = {}
+
+    async def framer() -> None:
+        k = 0
+        while time.monotonic() - t0 < args.duration:
+            await asyncio.sleep(max(0.0, t0 + k / args.hz - time.monotonic()))
+            t = k / args.hz
+            body = {"timestamp": t, "agents": [{"agent_id": a, **e} for a, e in scene.step(t)]}
+            started = time.perf_counter()
+            await frames.apply_frame(services, FrameRequest.model_validate_json(json.dumps(body)))
+            frame_s.append(time.perf_counter() - started)
+            k += 1
+
+    async def planner(lane: float) -> None:
+        await asyncio.sleep(args.warm + random.uniform(0.0, 1.0 / args.hz))
+        start, k = time.monotonic(), 0
+        while time.monotonic() - t0 < args.duration:
+            due = start + k / args.hz
+            await asyncio.sleep(max(0.0, due - time.monotonic()))
+            k += 1
+            t = time.monotonic() - t0
+            x0 = -60.0 + (PLANNER_SPEED * t) % 120.0
+            step = PLANNER_SPEED * TRAJECTORY_DT
+            points = [
+                {"t": t + j * TRAJECTORY_DT, "x": x0 + step * j, "y": lane}
+                for j in range(TRAJECTORY_POINTS)
+            ]
+            request = MultiCollisionCheckRequest.model_validate(
+                {"trajectory": points, "mode": "time_indexed", "deadline_ms": args.deadline_ms}
+            )
+            answer = await checks.check_agents_at_once(services, request, time.perf_counter())
+            answer.model_dump_json()
+            check_s.append(time.monotonic() - due)
+            for result in answer.results:
+                verdicts[result.verdict] = verdicts.get(result.verdict, 0) + 1
+
+    lanes = [-20.0 + 40.0 * i / max(args.planners - 1, 1) for i in range(args.planners)]
+    await asyncio.gather(framer(), *(planner(lane) for lane in lanes))
+    await services.stop()
+    return summary(frame_s, check_s, verdicts, args.deadline_ms)
+
+
+def summary(
+    frame_s: list[float], check_s: list[float], verdicts: dict[str, int], deadline_ms: float
+) -> dict[str, Any]:
+    answers = sum(verdicts.values())
+    settled = verdicts.get("exact", 0) + verdicts.get("decision_exact", 0)
+    return {
+        "frames": len(frame_s),
+        "frame_ms": {q: quantile_ms(frame_s, float(q)) for q in ("0.5", "0.99")},
+        "checks": len(check_s),
+        "check_from_tick_ms": {q: quantile_ms(check_s, float(q)) for q in ("0.5", "0.9", "0.99")},
+        "checks_over_deadline": sum(s * 1e3 > deadline_ms for s in check_s),
+        "verdicts": verdicts,
+        "exact_or_decision_exact": settled / answers if answers else None,
+    }
+
+
+def line(name: str, result: dict[str, Any]) -> str:
+    f, c = result["frame_ms"], result["check_from_tick_ms"]
+    share = result["exact_or_decision_exact"]
+    return (
+        f"{name}: {result['frames']} frames, p50/p99 {f['0.5']:.1f}/{f['0.99']:.1f} ms; "
+        f"{result['checks']} check-alls from their tick p50/p90/p99 "
+        f"{c['0.5']:.1f}/{c['0.9']:.1f}/{c['0.99']:.1f} ms, "
+        f"{result['checks_over_deadline']} over the deadline; exact or decision-exact "
+        f"{100 * share:.2f} %"
+        if share is not None
+        else "no answers"
+    )
+
+
+def baseline(revision: str, argv: list[str]) -> dict[str, Any]:
+    """This script run on the tree of ``revision`` (a temporary ``git archive``)."""
+    from scripts.bench_frames import tree_of
+
+    with tree_of(revision) as tree:
+        env = dict(os.environ, FRT_BENCH_SOURCE=str(tree))
+        done = subprocess.run(
+            [sys.executable, str(Path(__file__).resolve()), *argv, "--json"],
+            env=env,
+            cwd=ROOT,
+            check=True,
+            capture_output=True,
+            text=True,
+        )
+    return json.loads(done.stdout.strip().splitlines()[-1])  # type: ignore[no-any-return]
+
+
+def parse(argv: list[str]) -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--model", type=Path, default=ROOT / "models" / "frt_unicycle.onnx")
+    p.add_argument("--agents", type=int, default=100)
+    p.add_argument("--planners", type=int, default=2)
+    p.add_argument("--hz", type=float, default=10.0)
+    p.add_argument("--deadline-ms", type=float, default=20.0)
+    p.add_argument("--duration", type=float, default=20.0, help="seconds of scene")
+    p.add_argument("--warm", type=float, default=1.0, help="seconds before the planners start")
+    p.add_argument("--baseline", help="a git revision to run the same scene on afterwards")
+    p.add_argument("--out", type=Path)
+    p.add_argument("--json", action="store_true", help="print the result as one JSON line")
+    return p.parse_args(argv)
+
+
+def main(argv: list[str]) -> None:
+    args = parse(argv)
+    result = asyncio.run(drive(args))
+    if args.json:
+        print(json.dumps(result))
+        return
+    results = {"working tree": result}
+    if args.baseline:
+        forwarded = [a for a in argv if not a.startswith("--baseline") and a != args.baseline]
+        results[f"baseline {args.baseline}"] = baseline(args.baseline, forwarded)
+    for name, found in results.items():
+        print(line(name, found))
+    if args.out:
+        args.out.write_text(json.dumps(results, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

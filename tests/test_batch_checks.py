@@ -23,7 +23,7 @@ from shapely.geometry import Point, box, shape
 from reach.footprint import MAX_DISCS, disc_centres, disc_cover, footprint_distances
 from service.flows.check_points import CheckPoints, check_points
 from service.runtime.settings import Settings
-from service.wire.batch_body import parse_batch_check
+from service.wire.batch_body import holds_booleans, parse_batch_check
 from service.wire.errors import FieldError
 from service.wire.schemas import CollisionCheckRequest, MultiCollisionCheckRequest
 from tests.conftest import LiveServer
@@ -487,3 +487,20 @@ def test_a_batch_read_in_bulk_has_the_models_points_and_errors(change: dict) -> 
     assert (error is None) == (change == {})
     if points is not None:
         assert points.starts.tolist() == [0, 3]
+
+
+@pytest.mark.parametrize(
+    ("raw", "found"),
+    [
+        (b'{"a": true}', True),
+        (b'{"a": [1.0, false]}', True),
+        (b"true", True),
+        (b'{"a": "tru", "b": "alse"}', False),
+        (b'{"trajectories": [{"t": [0.1]}]}', False),
+        (b"", False),
+        (b"fals", False),
+    ],
+)
+def test_the_bulk_parser_finds_every_boolean_token(raw: bytes, found: bool) -> None:
+    assert holds_booleans(raw) is found
+    assert found is any(token in raw for token in (b"true", b"false"))

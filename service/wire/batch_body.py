@@ -94,7 +94,7 @@ def parse_batch_check(raw: bytes, model: type[M]) -> M | None:
         return None
     if not isinstance(data, dict):
         return None
-    columns = _columns(data.get("trajectories"), strict=any(b in raw for b in BOOLEANS))
+    columns = _columns(data.get("trajectories"), strict=holds_booleans(raw))
     if columns is None:
         return None
     try:
@@ -102,6 +102,20 @@ def parse_batch_check(raw: bytes, model: type[M]) -> M | None:
     except ValidationError:
         return None
     return request.model_copy(update={"trajectories": columns})
+
+
+def holds_booleans(raw: bytes) -> bool:
+    """Whether ``raw`` holds one of :data:`BOOLEANS` anywhere: the places of each token's first
+    byte, narrowed byte by byte (one vectorised pass, where ``bytes.find`` scans the body once
+    per token at a fraction of the speed)."""
+    buffer = np.frombuffer(raw, dtype=np.uint8)
+    for token in BOOLEANS:
+        at = np.flatnonzero(buffer[: max(len(buffer) - len(token) + 1, 0)] == token[0])
+        for k in range(1, len(token)):
+            at = at[buffer[at + k] == token[k]]
+        if len(at):
+            return True
+    return False
 
 
 def _columns(batch: Any, strict: bool) -> ColumnBatch | None:

@@ -17,7 +17,7 @@ from shapely.geometry.base import BaseGeometry
 
 from reach.distances import box_union_distances, signed_distances
 from reach.frames import human_frames
-from reach.packed_rings import signed_distances_packed, trajectory_surrogates
+from reach.packed_rings import point_columns, signed_distances_packed, trajectory_surrogates
 from reach.sets import BoxTubeSet, FRTSet
 
 
@@ -119,8 +119,8 @@ def trajectory_surrogates_of(
     distances computed only where those need them (with ``every_point``, every one of them, by
     the same kernel). The kernels move the world points into each set's human frame by the
     arithmetic of ``reach.frames.human_frames``."""
-    xy_world = np.ascontiguousarray(np.asarray(xy_world, dtype=np.float64).reshape(-1, 2))
-    n = xy_world.shape[0]
+    columns = point_columns(np.asarray(xy_world, dtype=np.float64).reshape(-1, 2))
+    n = len(columns[0])
     out = []
     for a, (frt, t) in enumerate(zip(sets, t_rel, strict=True)):
         if t is None:
@@ -130,13 +130,13 @@ def trajectory_surrogates_of(
         packed = frt.packed_tubes(tuple(tubes.tolist()))
         pose = (frt.pose.x, frt.pose.y, frt.pose.heading)
         if reduction.every_point:
-            out.append(signed_distances_packed(packed, which, xy_world, pose))
+            out.append(signed_distances_packed(packed, which, columns, pose))
             continue
         out.append(
             trajectory_surrogates(
                 packed,
                 which,
-                xy_world,
+                columns,
                 reduction.starts,
                 reduction.thresholds[a],
                 reduction.group,

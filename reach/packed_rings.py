@@ -141,16 +141,20 @@ def _chunk_boxes(segments: np.ndarray, segment_starts: np.ndarray) -> np.ndarray
     )
 
 
+#: Points as ``[N, 2]``, or as their contiguous columns (x, y) (:func:`point_columns`).
+Points = np.ndarray | tuple[np.ndarray, np.ndarray]
+
+
 def signed_distances_packed(
     packed: PackedRings,
     which: np.ndarray,
-    xy: np.ndarray,
+    xy: Points,
     pose: tuple[float, float, float] = IDENTITY,
 ) -> np.ndarray:
     """Signed distance of each point ``xy[i]`` to polygon ``which[i]`` of ``packed``, the points
     moved first into the frame of ``pose`` (x, y, heading; see :func:`frame`)."""
-    out = np.empty(len(xy), dtype=np.float64)
-    xs, ys = _points(xy)
+    xs, ys = point_columns(xy)
+    out = np.empty(len(xs), dtype=np.float64)
     _all_signed(*_arrays(packed), *frame(pose), xs, ys, np.asarray(which, dtype=np.int64), out)
     return out
 
@@ -158,7 +162,7 @@ def signed_distances_packed(
 def trajectory_surrogates(
     packed: PackedRings,
     which: np.ndarray,
-    xy: np.ndarray,
+    xy: Points,
     starts: np.ndarray,
     threshold: float,
     group: int = 1,
@@ -169,10 +173,10 @@ def trajectory_surrogates(
     the signed distances (see the module docstring). A point is ``group`` consecutive probes (a
     footprint's discs) and its value their least; trajectory k is the points
     ``starts[k]:starts[k + 1]``; the probes are moved first into the frame of ``pose``."""
-    out = np.empty(len(xy), dtype=np.float64)
+    xs, ys = point_columns(xy)
+    out = np.empty(len(xs), dtype=np.float64)
     begins = np.asarray(starts, dtype=np.int64)
-    ends = np.append(begins[1:], len(xy) // group)
-    xs, ys = _points(xy)
+    ends = np.append(begins[1:], len(xs) // group)
     _surrogates(
         (*_arrays(packed), packed.boxes, packed.supports, DIRECTIONS),
         *frame(pose),
@@ -207,7 +211,10 @@ def _arrays(packed: PackedRings) -> tuple[np.ndarray, ...]:
     return packed.segments, packed.segment_starts, packed.chunk_boxes, packed.chunk_starts
 
 
-def _points(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def point_columns(xy: Points) -> tuple[np.ndarray, np.ndarray]:
+    """The contiguous float columns (x, y) of points (as they are, if given so)."""
+    if isinstance(xy, tuple):
+        return xy
     return (
         np.ascontiguousarray(xy[:, 0], dtype=np.float64),
         np.ascontiguousarray(xy[:, 1], dtype=np.float64),

@@ -64,6 +64,7 @@ from frt_client.models import (
     MultiCollisionCheck,
     ObservationResult,
     Readiness,
+    RelaxedAssumption,
     TrajectoryAnswer,
 )
 from frt_client.retry import NO_RETRY, RetryPolicy
@@ -115,6 +116,7 @@ __all__ = [
     "Prediction",
     "PredictionMode",
     "Readiness",
+    "RelaxedAssumption",
     "RetryPolicy",
     "ServerError",
     "Stream",

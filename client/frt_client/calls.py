@@ -69,6 +69,7 @@ def observe(
     config: Any = None,
     wait_frt_ms: float = 0.0,
     agent_class: str | None = None,
+    map_id: str | None = None,
 ) -> Call[ObservationResult]:
     body = inputs.without_none(
         {
@@ -78,6 +79,7 @@ def observe(
             "prediction": inputs.prediction(prediction),
             "config": inputs.config(config),
             "agent_class": agent_class,
+            "map_id": map_id,
         }
     )
     return Call(
@@ -94,7 +96,7 @@ def observe(
 
 def frame(*, timestamp: float, agents: Iterable[Any]) -> Call[FrameResult]:
     """One frame: per agent a mapping of ``agent_id``, ``state``, ``prediction`` and, as in
-    :func:`observe`, ``observed_action``, ``config``, ``agent_class``."""
+    :func:`observe`, ``observed_action``, ``config``, ``agent_class``, ``map_id``."""
     entries = []
     for i, agent in enumerate(agents):
         if not isinstance(agent, dict) or "agent_id" not in agent:
@@ -108,6 +110,7 @@ def frame(*, timestamp: float, agents: Iterable[Any]) -> Call[FrameResult]:
                     "prediction": inputs.prediction(agent.get("prediction")),
                     "config": inputs.config(agent.get("config")),
                     "agent_class": agent.get("agent_class"),
+                    "map_id": agent.get("map_id"),
                 }
             )
         )

@@ -25,7 +25,7 @@ import pydantic
 from pydantic import BaseModel, ConfigDict, field_validator
 
 from frt_client.errors import ValidationError
-from frt_client.models import BoundsFit, BoundsRule, ControlBounds
+from frt_client.models import Assumption, BoundsFit, BoundsRule, ControlBounds
 
 #: The eight control-bound columns, in the model contract's order.
 BOUND_COLUMNS: tuple[str, ...] = (
@@ -106,6 +106,9 @@ class AgentConfig(RequestPart):
     #: Adaptive gamma: the long-run share of audited positions inside C to hold, and its step.
     coverage_target: float | None = None
     coverage_step: float | None = None
+    #: The map assumptions to answer under where the agent names a map ("drivable_area",
+    #: "reachable_lanes"; [] for none; default: the server's).
+    assumptions: list[Assumption] | None = None
 
 
 class TrajectoryPoint(RequestPart):

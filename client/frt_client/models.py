@@ -15,6 +15,8 @@ Mode = Literal["tube", "time_indexed"]
 Part = Literal["K", "C"]
 BoundsFit = Literal["envelope", "endpoints"]
 BoundsRule = Literal["paper", "uniform_mixture", "mass_ramp"]
+#: The map assumptions a set may be cut by (the service's docs/maps.md).
+Assumption = Literal["drivable_area", "reachable_lanes"]
 #: A GeoJSON geometry object (``Polygon`` or ``MultiPolygon``) in the world frame.
 GeoJSON = dict[str, Any]
 
@@ -60,6 +62,8 @@ class EffectiveConfig(Response):
     #: Adaptive gamma's target share of audited positions inside C (None: gamma fixed).
     coverage_target: float | None = None
     coverage_step: float | None = None
+    #: The configured map assumptions (the agent's class keeps those that apply to it).
+    assumptions: tuple[str, ...] = ()
 
 
 class LastMiss(Response):
@@ -152,6 +156,13 @@ class FrameResult(Response):
         return [r for r in self.results if isinstance(r, FrameRejection)]
 
 
+class RelaxedAssumption(Response):
+    """A map assumption dropped for an agent observed breaking it, until a time on its clock."""
+
+    assumption: str
+    until: float
+
+
 class Agent(Response):
     """Answer to :meth:`FRTClient.get_agent`: what the service holds for one human."""
 
@@ -179,6 +190,11 @@ class Agent(Response):
     gamma_effective: float | None = None
     #: The coverage audit (None with the audit off).
     audit: Audit | None = None
+    #: The map the agent named (None: none), the map assumptions its current version is answered
+    #: under, and those dropped for it after it was observed breaking them.
+    map_id: str | None = None
+    assumptions: tuple[str, ...] = ()
+    relaxed_assumptions: tuple[RelaxedAssumption, ...] = ()
 
 
 class DeleteResult(Response):
@@ -225,6 +241,9 @@ class CollisionCheck(CollisionAnswer):
     verdict: Literal["exact", "decision_exact", "conservative"] | None = None
     #: A batch check's answers, one per trajectory in order (then ``collision`` is any of them).
     trajectories: list[TrajectoryAnswer] | None = None
+    #: The map assumptions the answer holds under (the agent's set cut to the road); empty
+    #: without a map and for batch checks.
+    assumptions: tuple[str, ...] = ()
 
 
 class MultiCollisionCheck(Response):
@@ -267,6 +286,8 @@ class AgentContours(ContourSet):
     horizon_s: float
     collision_radius: float
     conservative: bool
+    #: The map assumptions the set drawn was cut by (empty without a map).
+    assumptions: tuple[str, ...] = ()
 
 
 class ConstraintPiece(Response):
@@ -325,6 +346,8 @@ class FRTResult(Response):
     conservative: bool
     contours: ContourSet | None = None
     collision: CollisionAnswer | None = None
+    #: The map assumptions the answering set was cut by (with ``map_id``).
+    assumptions: tuple[str, ...] = ()
 
 
 class ModelCard(Response):

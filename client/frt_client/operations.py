@@ -49,6 +49,7 @@ class Operations:
         config: Any = None,
         wait_frt_ms: float = 0.0,
         agent_class: str | None = None,
+        map_id: str | None = None,
     ) -> ObservationResult:
         """Report a new observation of one human; never sent twice (see :mod:`frt_client.retry`).
 
@@ -65,6 +66,9 @@ class Operations:
             config: per-agent settings (:class:`~frt_client.AgentConfig` or mapping), from now on.
             agent_class: ``"car"`` (the service's default), ``"cyclist"`` or ``"pedestrian"``;
                 fixed for the agent once set (409 if changed).
+            map_id: a map registered on the service (``PUT /v1/maps/{map_id}``): the agent's
+                sets are cut to the road under its map assumptions (``config.assumptions``),
+                the map kept for it until another is named (unknown: 422 naming ``map_id``).
             wait_frt_ms: answer once the new version's exact FRT is computed or this much time
                 has passed (at most 10 000; ``frt_ready`` says which; HTTP only): the fresh set
                 in one request instead of a following ``get_agent(wait_frt_ms=...)``.
@@ -79,13 +83,15 @@ class Operations:
                 config=config,
                 wait_frt_ms=wait_frt_ms,
                 agent_class=agent_class,
+                map_id=map_id,
             )
         )
 
     def frame(self, *, timestamp: float, agents: Iterable[Any]) -> FrameResult:
         """Report one frame of many humans in one request (``POST /v1/frames``); never sent
         twice. ``agents``: per human a mapping with ``agent_id``, ``state``, ``prediction`` and
-        optionally ``observed_action``, ``config``, ``agent_class`` (as :meth:`observe`). A
+        optionally ``observed_action``, ``config``, ``agent_class``, ``map_id`` (as
+        :meth:`observe`). A
         rejected human is answered by index and field (:meth:`FrameResult.rejections`); nothing
         of it changes and the others are applied."""
         return self.send(calls.frame(timestamp=timestamp, agents=agents))
@@ -280,6 +286,7 @@ class AsyncOperations:
         config: Any = None,
         wait_frt_ms: float = 0.0,
         agent_class: str | None = None,
+        map_id: str | None = None,
     ) -> ObservationResult:
         """Report a new observation of one human; never sent twice (see :mod:`frt_client.retry`).
 
@@ -296,6 +303,9 @@ class AsyncOperations:
             config: per-agent settings (:class:`~frt_client.AgentConfig` or mapping), from now on.
             agent_class: ``"car"`` (the service's default), ``"cyclist"`` or ``"pedestrian"``;
                 fixed for the agent once set (409 if changed).
+            map_id: a map registered on the service (``PUT /v1/maps/{map_id}``): the agent's
+                sets are cut to the road under its map assumptions (``config.assumptions``),
+                the map kept for it until another is named (unknown: 422 naming ``map_id``).
             wait_frt_ms: answer once the new version's exact FRT is computed or this much time
                 has passed (at most 10 000; ``frt_ready`` says which; HTTP only).
         """
@@ -309,6 +319,7 @@ class AsyncOperations:
                 config=config,
                 wait_frt_ms=wait_frt_ms,
                 agent_class=agent_class,
+                map_id=map_id,
             )
         )
 

@@ -26,12 +26,16 @@ class AgentConfig:
     rescue_onset: float
     coverage_target: float | None
     coverage_step: float
+    #: The map assumptions the agent is answered under where it names a map and its class allows
+    #: them (``service.flows.road``); the server's ``FRT_ASSUMPTIONS`` unless it names its own.
+    assumptions: tuple[str, ...]
 
     @classmethod
     def of(cls, settings: Settings, overrides: dict[str, Any]) -> AgentConfig:
         """``settings`` overlaid with the non-null ``overrides`` of these fields."""
         values = {name: getattr(settings, name) for name in CONFIG_KEYS}
         values.update({k: v for k, v in overrides.items() if k in CONFIG_KEYS and v is not None})
+        values["assumptions"] = tuple(values["assumptions"])
         return cls(**values)
 
     def with_gamma(self, gamma: float) -> AgentConfig:

@@ -10,6 +10,10 @@ them (:func:`observe_many`); an observation alone is a frame of one.
 The observed position is audited against the agent's earlier sets (``service.runtime.audit``) after
 the answer is sent; for an agent with ``coverage_target``, before its new state is built, since the
 misses move the gamma the new version's bounds are fitted with (``service.flows.adaptive_gamma``).
+
+An observation naming a map (``map_id``), or of an agent that named one, tests the agent's map
+assumptions at its pose and keeps the map, the assumptions in force and those it dropped in the
+stored state (``service.flows.road.observed_on_map``); breaches are counted once stored.
 """
 
 from __future__ import annotations
@@ -34,6 +38,7 @@ from service.flows.next_state import (
     observed_predictions,
     resolve_class,
 )
+from service.flows.road import agent_assumptions, observed_on_map, relaxed_out
 from service.runtime.audit import Scored, ServedVersion, count_audited_many, score_many
 from service.runtime.conservative import cached_conservative, start_conservative
 from service.runtime.jobs import FRTJob
@@ -102,6 +107,8 @@ class _Entry:
     scored: list[Scored] | None = None
     inputs: StateInputs | None = None
     built: list[Belief] = field(default_factory=list)
+    #: The map assumptions the observed pose broke (``service.flows.road``).
+    broken: tuple[str, ...] = ()
 
 
 async def observe_many(
@@ -235,6 +242,9 @@ def _submitted(
     conservative = cached_conservative(services, [job for _, _, job in applied])
     later = []
     for (entry, state, job), frt in zip(applied, conservative, strict=True):
+        for name in entry.broken:
+            klass = str(state.config.get("agent_class", "car"))
+            services.metrics.assumption_violations.labels(name, klass).inc()
         if services.settings.audit:
             later += _record_for_audit(services, entry, state, job.key, frt)
         results[entry.index] = Applied(state, job, entry.built[-1])
@@ -278,6 +288,13 @@ def _state_inputs(
     overrides = {**(prior.config if prior else {}), **entry.patch}
     klass, overrides = resolve_class(entry.agent_id, request.agent_class, prior, overrides)
     config = AgentConfig.of(services.settings, overrides)
+    overrides, entry.broken = observed_on_map(
+        services,
+        overrides,
+        request.map_id,
+        config.assumptions,
+        (request.timestamp, request.state),
+    )
     if score and services.settings.audit and config.coverage_target is not None:
         position = request.state
         entry.scored = services.score_position(
@@ -404,6 +421,7 @@ async def get_agent(services: Services, agent_id: str, wait_frt_s: float = 0.0) 
     key = services.job_for(state).key
     exact = services.scheduler.lookup(key) if services.engine else None
     ready = exact is not None
+    _, assumptions = agent_assumptions(services, state)
     return AgentResponse(
         agent_id=agent_id,
         timestamp=state.timestamp,
@@ -426,6 +444,9 @@ async def get_agent(services: Services, agent_id: str, wait_frt_s: float = 0.0) 
             if services.settings.audit
             else None
         ),
+        map_id=state.config.get("map_id"),
+        assumptions=assumptions,
+        relaxed_assumptions=relaxed_out(state),
     )
 
 

@@ -7,6 +7,12 @@ request's arrival, and part of it is kept for answering, at what answering costs
 (``service.runtime.answer_cost``), and for the trip back. Sets that should not be done within the
 wait at the workers' recent pace (running or queued) are not waited for. Clearance is the signed
 distance to K minus R_col: negative inside C.
+
+An agent answered under map assumptions (``service.flows.road``) is measured on its uncut set
+first; only one that comes within ``exact_demand_margin_m`` of colliding there has its set cut
+and those points measured again (:func:`service.flows.road.cut_near`): the cut set lies inside
+the uncut one, so the others' verdicts are the cut set's already and their clearances lower
+bounds of the cut set's. Batch checks are answered from the uncut sets, without assumptions.
 """
 
 from __future__ import annotations
@@ -27,6 +33,7 @@ from reach.union import box_members
 from service.flows.agent_config import AgentConfig
 from service.flows.check_points import CheckPoints, check_points, check_work, trajectory_answers
 from service.flows.confidence import stored_estimates
+from service.flows.road import cut_near
 from service.runtime.answer_cost import AnswerCosts
 from service.runtime.jobs import FRTJob
 from service.runtime.services import Services
@@ -113,6 +120,8 @@ class _Timeline:
     boxes_done: float = 0.0
     sets_done: float = 0.0
     done: float = 0.0
+    #: Seconds spent cutting sets to the road while answering (not answering's own cost).
+    cut_s: float = 0.0
 
     def phases_ms(self) -> dict[str, float]:
         """Where the time went: before this module ran (parsing, the event loop busy with other
@@ -175,10 +184,11 @@ async def answer_states(
     # Tubes drawn for this check are budgeted on their own (TubeBuilder.cost).
     drawing = services.tubes.spent_s - drawn_before
     costs.exact.record(timeline.sets_done - timeline.boxes_done - drawing, len(pending))
-    results = _respond_all(services, states, exact, request, points, radii, distances, coarse)
+    road = _RoadCut(jobs, chosen, coarse, t_rel, timeline, deadline_ms, costs)
+    results = _respond_all(services, states, exact, request, points, radii, distances, road)
     _count_reasons(services, not_ready=not_ready, no_time=no_time, tubes=len(coarse))
     timeline.done = time.perf_counter()
-    costs.response.record(timeline.done - timeline.sets_done, len(states))
+    costs.response.record(timeline.done - timeline.sets_done - timeline.cut_s, len(states))
     if no_time and not any(frt is not None for frt in exact):
         skipped = next(i for i, frt in enumerate(found) if frt is not None)
         asyncio.get_running_loop().call_soon(
@@ -189,6 +199,55 @@ async def answer_states(
         )
     _note_deadline(services, timeline, deadline_ms, len(states), not_ready, no_time)
     return results
+
+
+@dataclass(frozen=True)
+class _RoadCut:
+    """What cutting a check's sets to the road needs besides the distances: each agent's job,
+    the set it is answered from, those answered with later tubes than their points' own (not
+    cut), the points' times after each observation, the check's timeline and deadline."""
+
+    jobs: list[FRTJob]
+    chosen: dict[int, FRTSet]
+    coarse: set[int]
+    t_rel: list[np.ndarray | None]
+    timeline: _Timeline
+    deadline_ms: float
+    costs: AnswerCosts
+
+
+def _road_assumptions(
+    services: Services,
+    states: Sequence[AgentState],
+    points: CheckPoints,
+    radii: np.ndarray,
+    distances: dict[int, np.ndarray],
+    road: _RoadCut,
+) -> list[list[str]]:
+    """Each agent's map assumptions, its distances measured to its cut set where they come near
+    (``service.flows.road.cut_near``) while the deadline leaves time to answer them all; none
+    for a batch.
+    The time it takes goes into ``road.timeline.cut_s``."""
+    if points.batch:
+        return [[] for _ in states]
+    start = time.perf_counter()
+    until = (
+        road.timeline.arrival
+        + (road.deadline_ms - services.settings.deadline_reserve_ms) / 1000.0
+        - road.costs.response.upper_s(len(states))
+    )
+    labels = cut_near(
+        services,
+        states,
+        [job.key for job in road.jobs],
+        road.chosen,
+        distances,
+        (points.probe_xy, road.t_rel, points.thresholds(radii)),
+        until,
+        road.coarse,
+    )
+    road.timeline.cut_s = time.perf_counter() - start
+    return labels
 
 
 def _note_deadline(
@@ -467,11 +526,14 @@ def _respond_all(
     points: CheckPoints,
     radii: np.ndarray,
     distances: dict[int, np.ndarray],
-    coarse: set[int],
+    road: _RoadCut,
 ) -> list[CollisionCheckResponse]:
-    """Every agent's answer from its probes' distances to K (``distances[i]``, before R_col), the
-    clearance arithmetic done for all agents at once; ``coarse``: agents whose exact set was
-    checked with later tubes than the points' own (conservative)."""
+    """Every agent's answer from its probes' distances to K (``distances[i]``, before R_col),
+    measured again to its set cut to the road where that can change it (:func:`_road_assumptions`),
+    the clearance arithmetic done for all agents at once; ``road.coarse``: agents whose exact set
+    was checked with later tubes than the points' own (conservative)."""
+    labels = _road_assumptions(services, states, points, radii, distances, road)
+    coarse = road.coarse
     if not states:
         return []
     probed = np.stack([np.asarray(distances[i], dtype=np.float64) for i in range(len(states))])
@@ -509,6 +571,7 @@ def _respond_all(
                 frt_version=state.frt_version,
                 conservative=conservative,
                 horizon_end=state.timestamp + horizon,
+                assumptions=labels[i],
             )
         )
     _note_demand(services, results, clearance.min(axis=1))

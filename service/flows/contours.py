@@ -2,6 +2,9 @@
 
 Also the steps every read of one agent's set shares (:func:`parse_times`, :func:`query_model`,
 :func:`agent_set`), which ``service.flows.constraints`` reads its set with too.
+
+An agent answered under map assumptions (``service.flows.road``) has its contours drawn from its
+set cut by them, and the answer lists them (C = cut K ⊕ R_col).
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ from starlette.concurrency import run_in_threadpool
 
 from reach.sets import FRTSet
 from service.flows.agent_config import AgentConfig
+from service.flows.road import agent_assumptions, agent_cut
 from service.runtime.services import Services
 from service.runtime.stores import AgentState
 from service.wire.errors import AgentNotFoundError, FieldError, dotted
@@ -85,6 +89,16 @@ class AgentSet:
             return self.exact, False
         return self.conservative(), True
 
+    def on_the_road(self, services: Services) -> tuple[FRTSet, bool, list[str]]:
+        """:meth:`frt` cut by the agent's map assumptions, and those it was cut by (none without
+        a map); blocking, call from a thread."""
+        frt, conservative = self.frt()
+        entry, active = agent_assumptions(services, self.state)
+        if entry is None:
+            return frt, conservative, []
+        cut, used = agent_cut(services, entry, services.job_for(self.state).key, frt, active)
+        return cut, conservative, used
+
 
 async def agent_set(
     services: Services,
@@ -125,11 +139,11 @@ async def agent_contours(
     served = await agent_set(services, agent_id, query.slices, collision_radius, location)
     state, radius = served.state, served.collision_radius
 
-    def compute() -> tuple[Contours, bool]:
-        frt, conservative = served.frt()
-        return build(frt, query, radius, state.timestamp), conservative
+    def compute() -> tuple[Contours, bool, list[str]]:
+        frt, conservative, assumptions = served.on_the_road(services)
+        return build(frt, query, radius, state.timestamp), conservative, assumptions
 
-    contours, conservative = await run_in_threadpool(compute)
+    contours, conservative, assumptions = await run_in_threadpool(compute)
     return ContoursResponse(
         **contours.model_dump(),
         agent_id=agent_id,
@@ -138,4 +152,5 @@ async def agent_contours(
         horizon_s=served.horizon_s,
         collision_radius=radius,
         conservative=conservative,
+        assumptions=assumptions,
     )

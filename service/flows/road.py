@@ -1,19 +1,53 @@
-"""The road assumption of a state that names a map (docs/maps.md): its set cut to the drivable
-area while the state is on it.
+"""Sets that know the road (docs/maps.md): the map assumptions a state is answered under, and its
+set cut by them.
 
-A state off R = D ⊕ ``FRT_MAP_MARGIN_M`` (within the map's extent) breaks the assumption already:
-its set is served uncut, with no assumption listed, and the breach is counted
-(``frt_assumption_violations_total{assumption="drivable_area"}``).
+The stateless endpoint (:func:`on_the_road`): a state that names a map is cut to the drivable
+area while it is on it; a state off R = D ⊕ ``FRT_MAP_MARGIN_M`` (within the map's extent) breaks
+the assumption already: its set is served uncut, with no assumption listed, and the breach is
+counted (``frt_assumption_violations_total{assumption="drivable_area"}``).
+
+Agents (:func:`observed_on_map`, :func:`agent_cut`): an agent that names a map keeps it
+(``map_id`` in its stored overrides) and is answered under the assumptions its configuration
+names (``config.assumptions``, else ``FRT_ASSUMPTIONS``) that its class allows
+(:data:`CLASS_ASSUMPTIONS`). Each observation tests them at the observed pose (SPOT's
+self-relaxation): ``drivable_area`` is broken off R, ``reachable_lanes`` where the pose is
+within the map's extent and no start lane holds it (``reach.lanes``: off every vehicle lane ⊕
+margin, or heading more than 30° off every lane holding it). A broken assumption is dropped for
+the agent until ``FRT_ASSUMPTION_RELAX_S`` after that observation on its clock, in its stored
+state (so every replica reads the same); the first observation at or after that time tests it
+again. Outside the map's extent ``reachable_lanes`` is not tested and does not apply (no lane is
+known there); ``drivable_area`` holds there (R is the whole plane outside the extent).
 """
 
 from __future__ import annotations
 
-from collections.abc import Hashable
+import time
+from collections.abc import Hashable, Sequence
+from typing import Any
 
+import numpy as np
+
+from reach.lanes import HEADING_TOLERANCE, REACHABLE_LANES, VEHICLE_LANE_TYPES
 from reach.road_cut import DRIVABLE_AREA
 from reach.sets import FRTSet
 from service.runtime.maps import MapEntry
 from service.runtime.services import Services
+from service.runtime.stores import AgentState
+from service.wire.schemas import HumanState, RelaxedAssumptionOut
+
+#: The assumptions each agent class may be answered under: vehicles keep to the drivable area
+#: and their reachable lanes, cyclists to the drivable area (bike lanes are not used), pedestrians
+#: to neither (they walk on pavements and cross anywhere; a model with crossings is not built).
+CLASS_ASSUMPTIONS: dict[str, tuple[str, ...]] = {
+    "car": (DRIVABLE_AREA, REACHABLE_LANES),
+    "cyclist": (DRIVABLE_AREA,),
+    "pedestrian": (),
+}
+#: Keys of an agent's stored overrides (``AgentState.config``): the map it named, the assumptions
+#: its current version is answered under, and those dropped for it ({name: until}).
+MAP_KEY = "map_id"
+ACTIVE_KEY = "assumptions_active"
+RELAXED_KEY = "assumptions_relaxed"
 
 
 def map_entry(services: Services, map_id: str | None, field: str = "map_id") -> MapEntry | None:
@@ -41,3 +75,129 @@ def on_the_road(
         return frt, []
     services.metrics.road_cuts.labels("cut").inc()
     return services.maps.cut(entry, (key, frt.conservative), frt), [DRIVABLE_AREA]
+
+
+def _tested(services: Services, entry: MapEntry, name: str, pose: HumanState) -> bool | None:
+    """Whether the pose keeps assumption ``name``; None where it is not tested (the lanes
+    outside the map's extent)."""
+    road, margin = entry.road, services.maps.margin
+    if name == DRIVABLE_AREA:
+        return road.on_road(pose.x, pose.y, margin)
+    x0, y0, x1, y1 = road.extent
+    if not (x0 <= pose.x <= x1 and y0 <= pose.y <= y1):
+        return None
+    graph = road.lane_graph
+    index = graph.index(margin, road.region(margin))
+    xy = (pose.x, pose.y)
+    return bool(graph.start(index, xy, pose.heading, VEHICLE_LANE_TYPES, HEADING_TOLERANCE))
+
+
+def observed_on_map(
+    services: Services,
+    overrides: dict[str, Any],
+    map_id: str | None,
+    configured: tuple[str, ...],
+    observed: tuple[float, HumanState],
+) -> tuple[dict[str, Any], tuple[str, ...]]:
+    """The agent's overrides with its map, active and relaxed assumptions after an observation
+    (``observed``: its time and pose), and the assumptions it broke there. ``map_id``: the one
+    the observation names (422 naming ``map_id`` if unknown), else the agent's; ``overrides``
+    itself where neither names one. A map deleted since the agent named it: no assumption."""
+    named = map_id if map_id is not None else overrides.get(MAP_KEY)
+    if named is None:
+        return overrides, ()
+    entry = services.maps.require(named) if map_id is not None else services.maps.get(named)
+    t, pose = observed
+    relaxed = {a: u for a, u in (overrides.get(RELAXED_KEY) or {}).items() if u > t}
+    wanted = [
+        a
+        for a in CLASS_ASSUMPTIONS.get(str(overrides.get("agent_class", "car")), ())
+        if a in configured
+    ]
+    broken, active = [], []
+    for name in wanted if entry is not None else ():
+        holds = _tested(services, entry, name, pose)  # type: ignore[arg-type]
+        if holds is False:
+            broken.append(name)
+            relaxed[name] = t + services.settings.assumption_relax_s
+        elif holds and name not in relaxed:
+            active.append(name)
+    out = {**overrides, MAP_KEY: named, ACTIVE_KEY: active}
+    if relaxed:
+        out[RELAXED_KEY] = relaxed
+    else:
+        out.pop(RELAXED_KEY, None)
+    return out, tuple(broken)
+
+
+def agent_assumptions(services: Services, state: AgentState) -> tuple[MapEntry | None, list[str]]:
+    """The map and the assumptions the agent's current version is answered under (none without
+    a map, or once its map is deleted)."""
+    active = state.config.get(ACTIVE_KEY)
+    if not active:
+        return None, []
+    entry = services.maps.get(state.config[MAP_KEY])
+    return (entry, list(active)) if entry is not None else (None, [])
+
+
+def relaxed_out(state: AgentState) -> list[RelaxedAssumptionOut]:
+    """The assumptions dropped for the agent, with the time each is tested again."""
+    relaxed = state.config.get(RELAXED_KEY) or {}
+    return [RelaxedAssumptionOut(assumption=a, until=float(u)) for a, u in relaxed.items()]
+
+
+def agent_cut(
+    services: Services, entry: MapEntry, key: Hashable, frt: FRTSet, active: Sequence[str]
+) -> tuple[FRTSet, list[str]]:
+    """``frt`` (the set of the agent's version ``key``) cut by its ``active`` assumptions, and
+    those it was cut by (the lanes fall away where they do not apply to the set: R alone);
+    ``frt`` and none where nothing cuts it. Cut sets are kept (``MapRegistry.cut_for``)."""
+    cut = services.maps.cut_for(entry, (key, frt.conservative), frt, tuple(active))
+    if cut is None:
+        return frt, []
+    services.metrics.road_cuts.labels("cut").inc()
+    return cut, list(cut.assumptions)
+
+
+def cut_near(
+    services: Services,
+    states: Sequence[AgentState],
+    keys: Sequence[Hashable],
+    sets: dict[int, FRTSet],
+    distances: dict[int, np.ndarray],
+    probes: tuple[np.ndarray, Sequence[np.ndarray | None], np.ndarray],
+    until: float,
+    coarse: set[int] | frozenset[int] = frozenset(),
+) -> list[list[str]]:
+    """The assumptions of each agent's answer, its probes' distances to K in ``distances``
+    (changed in place) measured to its set cut by them where they come within
+    ``exact_demand_margin_m`` of colliding. ``probes``: (points, their times after each agent's
+    observation, each agent's collision threshold). The cut set lies inside the uncut one, so a
+    probe farther than that keeps its distance to the uncut set, a lower bound of the cut
+    set's, and an agent none of whose probes is near is not cut: its verdict is the cut set's
+    already. An agent near once ``until`` (``time.perf_counter()``) has passed, or in ``coarse``
+    (answered with later tubes than its points' own), is answered from the uncut set, without
+    assumptions."""
+    xy, t_rel, thresholds = probes
+    margin = services.settings.exact_demand_margin_m
+    labels: list[list[str]] = []
+    for i, state in enumerate(states):
+        entry, active = agent_assumptions(services, state)
+        if entry is None:
+            labels.append([])
+            continue
+        near = np.asarray(distances[i]) < thresholds[i] + margin
+        if not near.any():
+            labels.append(active)
+            continue
+        if i in coarse or time.perf_counter() > until:
+            labels.append([])
+            continue
+        frt, used = agent_cut(services, entry, keys[i], sets[i], active)
+        if used:
+            measured = np.array(distances[i], dtype=np.float64)
+            times = None if t_rel[i] is None else t_rel[i][near]  # type: ignore[index]
+            measured[near] = frt.clearance(xy[near], times)
+            distances[i] = measured
+        labels.append(used)
+    return labels

@@ -4,8 +4,8 @@ those registered over the API (``PUT /v1/maps/{map_id}``), and the sets cut by t
 A map is an Argoverse 2 map archive (``reach.road_map``); its region R for the server's margin
 (``FRT_MAP_MARGIN_M``) is built when it is registered, so no request pays for it. Registering an
 id again replaces its map; sets cut by the map before are not reused (each registration has its
-own generation). Cut sets (``reach.road_cut.CutSet``) are kept per (set, map) in a small LRU: a
-request asking again for the same inputs reads the cut geometry drawn before.
+own generation). Cut sets (``reach.road_cut.CutSet``) are kept per (set, map, assumptions) in a
+small LRU: a request asking again for the same inputs reads the cut geometry drawn before.
 """
 
 from __future__ import annotations
@@ -18,14 +18,15 @@ from itertools import count
 from pathlib import Path
 from typing import Any
 
-from reach.road_cut import CutSet
+from reach.lanes import DRIVABLE_AREA, REACHABLE_LANES
+from reach.road_cut import CutSet, lane_cut
 from reach.road_map import MapFormatError, RoadMap
 from reach.sets import FRTSet
 from service.runtime.settings import Settings
 from service.wire.errors import APIError, FieldError
 
 #: Cut sets kept (the latest used).
-CUT_CACHE_SIZE = 256
+CUT_CACHE_SIZE = 512
 
 
 @dataclass(frozen=True)
@@ -59,7 +60,7 @@ class MapRegistry:
         self._maps: dict[str, MapEntry] = {}
         self._lock = threading.Lock()
         self._generations = count(1)
-        self._cuts: OrderedDict[Hashable, tuple[FRTSet, CutSet]] = OrderedDict()
+        self._cuts: OrderedDict[Hashable, tuple[FRTSet, CutSet | None]] = OrderedDict()
 
     def parse(self, raw: bytes) -> RoadMap:
         """The map of an archive's JSON bytes, its region built (blocking: call from a thread);
@@ -128,15 +129,32 @@ class MapRegistry:
         return len(self._maps)
 
     def cut(self, entry: MapEntry, key: Hashable, frt: FRTSet) -> CutSet:
-        """``frt`` cut by the map's region (``reach.road_cut.CutSet``), kept under (``key``, the
-        map's generation) while ``frt`` is the set cut: a refined set replacing it is cut anew."""
-        cache_key = (key, entry.generation)
+        """``frt`` cut by the map's region R (``reach.road_cut.CutSet``), kept as :meth:`cut_for`
+        keeps it."""
+        cut = self.cut_for(entry, key, frt, (DRIVABLE_AREA,))
+        assert cut is not None  # R always applies
+        return cut
+
+    def cut_for(
+        self, entry: MapEntry, key: Hashable, frt: FRTSet, assumptions: tuple[str, ...]
+    ) -> CutSet | None:
+        """``frt`` cut by the region of ``assumptions`` (R for ``drivable_area``, R ∩ L with
+        ``reachable_lanes`` too, L for ``reachable_lanes`` alone; ``reach.road_cut``), or by R
+        alone where the lanes do not apply (``lane_cut`` None; the set lists what cut it), None
+        where nothing applies. Kept under (``key``, ``assumptions``, the map's generation) while
+        ``frt`` is the set cut: a refined set replacing it is cut anew."""
+        cache_key = ((key, assumptions), entry.generation)
         with self._lock:
             found = self._cuts.get(cache_key)
             if found is not None and found[0] is frt:
                 self._cuts.move_to_end(cache_key)
                 return found[1]
-        cut = CutSet(frt, entry.road, self.margin)
+        drivable = DRIVABLE_AREA in assumptions
+        cut = None
+        if REACHABLE_LANES in assumptions:
+            cut = lane_cut(frt, entry.road, self.margin, drivable)
+        if cut is None and drivable:
+            cut = CutSet(frt, entry.road, self.margin)
         with self._lock:
             self._cuts[cache_key] = (frt, cut)
             self._cuts.move_to_end(cache_key)

@@ -5,12 +5,13 @@ from __future__ import annotations
 import os
 from functools import lru_cache
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import Field
+from pydantic import Field, field_validator
 from pydantic.fields import FieldInfo
 from pydantic_settings import (
     BaseSettings,
+    NoDecode,
     PydanticBaseSettingsSource,
     SettingsConfigDict,
 )
@@ -18,6 +19,9 @@ from pydantic_settings import (
 from reach.contract import HORIZON_S, U1_LIMIT, U2_LIMIT
 from reach.notch import NOTCH_CUT_BY_DEFAULT
 from service.runtime.profiles import PROFILE_ENV, load_profile
+
+#: The map assumptions the service knows (docs/maps.md).
+AssumptionName = Literal["drivable_area", "reachable_lanes"]
 
 DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "models" / "frt_unicycle.onnx"
 
@@ -126,6 +130,16 @@ class Settings(BaseSettings):
     max_map_bytes: int = Field(16_000_000, ge=1024)
     #: ... and the points one archive may hold (422 past it).
     max_map_points: int = Field(2_000_000, ge=1)
+    #: The map assumptions an agent that names a map is answered under, unless its ``config``
+    #: names its own (``FRT_ASSUMPTIONS=drivable_area,reachable_lanes``; empty: none); each
+    #: class keeps those that apply to it (``service.flows.road.CLASS_ASSUMPTIONS``).
+    assumptions: Annotated[tuple[AssumptionName, ...], NoDecode] = (
+        "drivable_area",
+        "reachable_lanes",
+    )
+    #: An assumption an agent is observed breaking is dropped for it for this many seconds of
+    #: its own clock (SPOT's self-relaxation; docs/maps.md).
+    assumption_relax_s: float = Field(5.0, ge=0.0, le=3600.0)
 
     #: Whether sets are cut by the value network: "auto" evaluates it unless its model card's
     #: evaluation found that it cuts nothing inside the certified geometry; "on", "off" force it.
@@ -156,6 +170,16 @@ class Settings(BaseSettings):
     log_json: bool = True
     #: Log one line per HTTP request (method, route, status, duration).
     log_requests: bool = True
+
+    @field_validator("assumptions", mode="before")
+    @classmethod
+    def _comma_separated(cls, value: Any) -> Any:
+        """``FRT_ASSUMPTIONS`` as comma-separated names (repeats dropped)."""
+        if isinstance(value, str):
+            value = [part.strip() for part in value.split(",") if part.strip()]
+        if isinstance(value, list | tuple):
+            value = tuple(dict.fromkeys(value))
+        return value
 
     @classmethod
     def settings_customise_sources(

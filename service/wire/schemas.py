@@ -133,6 +133,8 @@ class ObservationPrediction(Request):
 
 
 AgentClassName = Literal["car", "cyclist", "pedestrian"]
+#: The map assumptions (docs/maps.md).
+Assumption = Literal["drivable_area", "reachable_lanes"]
 
 
 class AgentConfig(Request):
@@ -171,6 +173,14 @@ class AgentConfig(Request):
     coverage_step: float | None = Field(
         None, gt=0.0, le=1.0, description="the adaptive rule's step (eta)"
     )
+    assumptions: list[Assumption] | None = Field(
+        None,
+        max_length=2,
+        description="the map assumptions to answer under where the agent names a map (default: "
+        "the server's FRT_ASSUMPTIONS); its class keeps those that apply to it: a car "
+        "drivable_area and reachable_lanes, a cyclist drivable_area, a pedestrian none "
+        "(docs/maps.md); [] for none",
+    )
 
 
 class EffectiveConfig(Response):
@@ -184,6 +194,9 @@ class EffectiveConfig(Response):
     rescue_onset: float
     coverage_target: float | None = Field(None, description="adaptive gamma's target; null: off")
     coverage_step: float
+    assumptions: list[str] = Field(
+        description="the configured map assumptions (before the agent's class and relaxation)"
+    )
 
 
 class LastMissOut(Response):
@@ -354,6 +367,12 @@ class ObservationRequest(Request):
     agent_class: AgentClassName | None = Field(
         None, description="car (default), cyclist or pedestrian; fixed for an agent once set"
     )
+    map_id: AgentId | None = Field(
+        None,
+        description="a registered map (PUT /v1/maps/{map_id}) the agent's sets are cut by under "
+        "its assumptions (config.assumptions), kept for the agent until another is named; "
+        "unknown: a 422 naming map_id (docs/maps.md)",
+    )
 
 
 class ModeOut(Response):
@@ -436,6 +455,16 @@ class FrameResponse(Response):
     )
 
 
+class RelaxedAssumptionOut(Response):
+    """A map assumption dropped for an agent that was observed breaking it."""
+
+    assumption: str
+    until: float = Field(
+        description="on the agent's clock: the first observation at or after it tests the "
+        "assumption again"
+    )
+
+
 class AgentResponse(_DropsUnsetModes):
     agent_id: str
     timestamp: float
@@ -468,6 +497,17 @@ class AgentResponse(_DropsUnsetModes):
     )
     audit: AuditOut | None = Field(
         None, description="the coverage audit; null with the audit off (FRT_AUDIT=0)"
+    )
+    map_id: str | None = Field(None, description="the map the agent named; null: none")
+    assumptions: list[str] = Field(
+        default_factory=list,
+        description="the map assumptions the agent's current version is answered under (checks "
+        "and contours list them); empty without a map (docs/maps.md)",
+    )
+    relaxed_assumptions: list[RelaxedAssumptionOut] = Field(
+        default_factory=list,
+        description="assumptions dropped for the agent after it was observed breaking them, "
+        "each until a time on its clock (FRT_ASSUMPTION_RELAX_S after the breach)",
     )
 
 
@@ -541,6 +581,13 @@ class CollisionCheckResponse(CollisionAnswer):
         description="a batch check's answers, one per trajectory in order (then ``collision`` is "
         "any of them, ``clearance`` empty and the first collision null); absent otherwise",
     )
+    assumptions: list[str] = Field(
+        default_factory=list,
+        description="the map assumptions the answer holds under: the agent's set cut to the "
+        "road (docs/maps.md; a clear verdict measured on the uncut set, which contains the cut "
+        "one, is the cut set's too and its clearance a lower bound of the cut set's); empty "
+        "without a map, and for batch checks (answered from the uncut set)",
+    )
 
     @model_serializer(mode="wrap")
     def _drop_unset_trajectories(self, handler: Any) -> dict[str, Any]:
@@ -610,6 +657,11 @@ class ContoursResponse(Contours):
     horizon_s: float
     collision_radius: float
     conservative: bool
+    assumptions: list[str] = Field(
+        default_factory=list,
+        description="the map assumptions the contours' set was cut by (docs/maps.md); empty "
+        "without a map",
+    )
 
 
 # ---------------------------------------------------------------------------------- constraints

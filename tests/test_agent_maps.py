@@ -136,6 +136,11 @@ def test_a_check_colliding_only_off_the_road_is_clear_with_the_map(client, pair)
         # The cut K lies in R within the extent: the point is at least this far from C.
         assert cut["clearance"][0] >= R.distance(point) - RADIUS - 1e-6
         CollisionCheck.model_validate(cut)
+    # The ego's box there (its discs all more than 4 m off R, far from the cut set too).
+    boxed = [{**trajectory[0], "heading": 0.0}]
+    footprint = {"length": 2.0, "width": 1.0}
+    assert check(client, "plain-car", boxed, footprint=footprint)["collision"]
+    assert not check(client, "road-car", boxed, footprint=footprint)["collision"]
     many = client.post(
         "/v1/collision-check",
         json={"trajectory": trajectory, "agent_ids": ["road-car", "plain-car"], "deadline_ms": 1e4},
@@ -255,6 +260,17 @@ def test_a_frame_rejects_only_the_entry_with_an_unknown_map(client, pair) -> Non
     assert client.get("/v1/agents/f-b").status_code == 404
     assert client.get("/v1/agents/f-a").json()["map_id"] == "austin"
     assert client.get("/v1/agents/f-c").json()["map_id"] is None
+
+
+def test_the_stream_observes_with_a_map(client: TestClient, pair) -> None:
+    with client.websocket_connect("/v1/stream") as ws:
+        ws.send_json({"id": 1, "op": "observe", "agent_id": "ws-car", **body(0.0, ON_ROAD, map_id="nowhere")})  # fmt: skip
+        refused = ws.receive_json()
+        ws.send_json({"id": 2, "op": "observe", "agent_id": "ws-car", **body(0.0, ON_ROAD, map_id="austin")})  # fmt: skip
+        accepted = ws.receive_json()
+    assert not refused["ok"] and refused["error"]["field"] == "map_id"
+    assert accepted["ok"], accepted
+    assert client.get("/v1/agents/ws-car").json()["map_id"] == "austin"
 
 
 def test_the_sdk_sends_map_id_and_assumptions() -> None:

@@ -102,13 +102,15 @@ def observed_on_map(
     """The agent's overrides with its map, active and relaxed assumptions after an observation
     (``observed``: its time and pose), and the assumptions it broke there. ``map_id``: the one
     the observation names (422 naming ``map_id`` if unknown), else the agent's; ``overrides``
-    itself where neither names one. A map deleted since the agent named it: no assumption."""
+    itself where neither names one. A map deleted since the agent named it: no assumption;
+    another map than the agent's: its relaxations start anew."""
     named = map_id if map_id is not None else overrides.get(MAP_KEY)
     if named is None:
         return overrides, ()
     entry = services.maps.require(named) if map_id is not None else services.maps.get(named)
     t, pose = observed
-    relaxed = {a: u for a, u in (overrides.get(RELAXED_KEY) or {}).items() if u > t}
+    kept = overrides.get(RELAXED_KEY) if named == overrides.get(MAP_KEY) else None
+    relaxed = {a: u for a, u in (kept or {}).items() if u > t}
     wanted = [
         a
         for a in CLASS_ASSUMPTIONS.get(str(overrides.get("agent_class", "car")), ())

@@ -19,9 +19,15 @@ from frt_client import calls
 from frt_client.models import Agent, CollisionCheck
 from shapely.geometry import Point, Polygon, shape
 
+from models.runtime import ValueModel
+from models.value_fields import engine_for
+from reach.engine import FRTEngine
+from reach.road_cut import CutSet, lane_cut
+from reach.road_map import RoadMap
 from service.api.app import create_app
 from tests.fixtures.payloads import observation, prediction
 from tests.test_maps_api import OFF_ROAD, ON_ROAD, RAW, put, settings_for, wait_ready
+from tests.test_road_cut import MODEL, scenario_settings
 
 BOTH = ["drivable_area", "reachable_lanes"]
 RADIUS = 1.5
@@ -306,3 +312,24 @@ def test_the_server_wide_setting_is_the_default_an_agent_overrides(
         observe(client, "lanes", 0.0, ON_ROAD, map_id="austin", config={"assumptions": BOTH})
         assert client.get("/v1/agents/car").json()["assumptions"] == ["drivable_area"]
         assert client.get("/v1/agents/lanes").json()["assumptions"] == BOTH
+
+
+@pytest.fixture(scope="module")
+def shipped_engine() -> FRTEngine:
+    return engine_for(ValueModel.load(MODEL, threads=1), network=False)
+
+
+@pytest.mark.parametrize("index", range(3))
+def test_a_cut_conservative_set_contains_the_cut_exact_one(shipped_engine, index) -> None:
+    """A check's conservative answer under assumptions stays conservative: cutting keeps
+    containment (exact ⊂ conservative, so their cuts by R, and by R ∩ L, are nested too)."""
+    engine, road = shipped_engine, RoadMap.from_json(RAW)
+    pose, v_start, bounds = scenario_settings()[index]
+    exact, outer = engine.exact(pose, v_start, bounds), engine.conservative(pose, v_start, bounds)
+    cuts = [(CutSet(exact, road, MARGIN), CutSet(outer, road, MARGIN))]
+    lanes = lane_cut(exact, road, MARGIN), lane_cut(outer, road, MARGIN)
+    assert lanes[0] is not None and lanes[1] is not None  # each car is in a lane of its heading
+    cuts.append(lanes)  # type: ignore[arg-type]
+    for inner, wider in cuts:
+        for j in range(0, inner.n_slices, 5):
+            assert inner.tube(j).difference(wider.tube(j).buffer(1e-6)).area < 1e-6, j

@@ -119,8 +119,9 @@ async def observe_many(
     states read in one ``get_many``, their next states built together (``next_states``: Bayes
     update, bounds fit), stored in one ``update_many`` (per agent the atomic update with the
     timestamp check: a state someone wrote in between is rebuilt from, under the agent's lock),
-    their exact sets submitted and their conservative sets built together. Per observation the
-    stored result, or the error that refused it (nothing of that agent changed)."""
+    their exact sets submitted and their conservative sets built together; between stages, the
+    checks waiting on the event loop go first. Per observation the stored result, or the error
+    that refused it (nothing of that agent changed)."""
     # Collision checks (deadlines) before this numerical work: requests already waiting on the
     # event loop go first, and checks in flight finish first.
     await services.priority.observation_turn()
@@ -128,7 +129,8 @@ async def observe_many(
     engine = services.require_engine()
     results: list[Applied | APIError | None] = [None] * len(observations)
     entries = _validated(services, observations, results)
-    previous = await services.store.get_many([e.agent_id for e in entries])
+    # Read, never modified: the next states are built anew (the store's update takes a copy).
+    previous = await services.store.get_many([e.agent_id for e in entries], shared=True)
     entries = [
         e
         for e, prior in zip(entries, previous, strict=True)
@@ -151,12 +153,11 @@ async def observe_many(
         stored_entries.append(entry)
     # The new versions' conservative sets are under way while they are stored (a state
     # rebuilt by the store's update gets its own below).
-    building = start_conservative(
-        services, [services.job_for(r[0]) for r in built if not isinstance(r, APIError)]
-    )  # type: ignore[index]
+    jobs = {id(r[0]): services.job_for(r[0]) for r in built if not isinstance(r, APIError)}
+    building = start_conservative(services, list(jobs.values()))  # type: ignore[index]
     await services.priority.observation_turn()
     stored = await services.store.update_many(updates)
-    _submitted(services, stored_entries, stored, results, building)
+    _submitted(services, stored_entries, stored, results, (building, jobs))
     return results  # type: ignore[return-value]
 
 
@@ -226,17 +227,20 @@ def _submitted(
     entries: list[_Entry],
     stored: list[AgentState | APIError],
     results: list[Applied | APIError | None],
-    building: Callable[[], list[FRTSet]],
+    first: tuple[Callable[[], list[FRTSet]], dict[int, FRTJob]],
 ) -> None:
-    """The stored versions' exact sets submitted, their conservative sets built (``building``
-    finishes those of the states first built; checks finding the exact set late look them up;
-    the audit keeps them) and recorded for the audit."""
+    """The stored versions' exact sets submitted, their conservative sets built and recorded for
+    the audit. ``first``: what finishes the conservative sets of the states first built (checks
+    finding the exact set late look them up; the audit keeps them), and those states' jobs by
+    ``id`` (a stored state is mostly the one first built)."""
+    building, jobs = first
     applied = []
     for entry, state in zip(entries, stored, strict=True):
         if isinstance(state, APIError):
             results[entry.index] = state
             continue
-        applied.append((entry, state, services.job_for(state)))
+        job = jobs.get(id(state))
+        applied.append((entry, state, job if job is not None else services.job_for(state)))
     services.submit_many([job for _, _, job in applied])
     building()
     conservative = cached_conservative(services, [job for _, _, job in applied])

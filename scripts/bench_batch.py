@@ -12,6 +12,10 @@ waits for their exact sets, then alternates, ``--rounds`` times:
 
 Prints the medians and p99 of the batch at the client and at the server (``Server-Timing``), the
 time of the whole series of single checks, and their ratio; writes ``results/bench_batch.json``.
+
+``--baseline REV`` starts a second service from the files of git revision ``REV`` beside this
+tree's and sends every request of a round to both in turn, so that the two are measured side by
+side under the same load (the shared machine's p99 moves by tens of milliseconds between runs).
 """
 
 from __future__ import annotations
@@ -21,6 +25,8 @@ import json
 import math
 import sys
 import time
+from contextlib import ExitStack
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import httpx
@@ -29,7 +35,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from scripts.bench import running_service, server_seconds, stats  # noqa: E402
+from scripts.bench import server_seconds, service_at, stats  # noqa: E402
+from scripts.bench_frames import tree_of  # noqa: E402
 
 FOOTPRINT = {"length": 4.8, "width": 1.9, "rear_axle_to_center": 1.4}
 
@@ -81,57 +88,109 @@ def timed_post(client: httpx.Client, body: bytes) -> tuple[float, float, dict]:
     return elapsed, server_seconds(response), response.json()
 
 
-def run(url: str, args: argparse.Namespace) -> dict:
+@dataclass
+class Target:
+    """One service under test, its request bodies and what was measured on it."""
+
+    name: str
+    client: httpx.Client
+    bodies: dict[str, bytes] = field(default_factory=dict)
+    singles: list[bytes] = field(default_factory=list)
+    rows: dict[str, list[float]] = field(
+        default_factory=lambda: {k: [] for k in ("batch", "batch_server", "fp", "fp_server")}
+    )
+    series: list[float] = field(default_factory=list)
+    verdicts: dict[str, int] = field(default_factory=dict)
+    hits: int = 0
+
+
+def prepare(target: Target, args: argparse.Namespace) -> None:
+    """Observe the agents (their exact sets ready), build the bodies, warm the service."""
     rng = np.random.default_rng(0)
     batch = candidates(args.trajectories, args.points)
-    with httpx.Client(base_url=url, timeout=60) as client:
-        agents = [f"bench-batch-{k}" for k in range(args.agents)]
-        for k, agent in enumerate(agents):
-            client.post(
-                f"/v1/agents/{agent}/observations",
-                params={"wait_frt_ms": 10_000},
-                json=observation(rng, k),
-            ).raise_for_status()
-        common = {"agent_ids": agents, "mode": "time_indexed", "deadline_ms": 1000}
-        plain = json.dumps({**common, "trajectories": as_columns(batch, False)}).encode()
-        boxed = json.dumps(
-            {**common, "trajectories": as_columns(batch, True), "footprint": FOOTPRINT}
+    agents = [f"bench-batch-{k}" for k in range(args.agents)]
+    for k, agent in enumerate(agents):
+        target.client.post(
+            f"/v1/agents/{agent}/observations",
+            params={"wait_frt_ms": 10_000},
+            json=observation(rng, k),
+        ).raise_for_status()
+    common = {"agent_ids": agents, "mode": "time_indexed", "deadline_ms": 1000}
+    target.bodies["batch"] = json.dumps(
+        {**common, "trajectories": as_columns(batch, False)}
+    ).encode()
+    target.bodies["fp"] = json.dumps(
+        {**common, "trajectories": as_columns(batch, True), "footprint": FOOTPRINT}
+    ).encode()
+    target.singles = [
+        json.dumps(
+            {**common, "trajectory": [dict(zip("txy", p[:3], strict=True)) for p in path.tolist()]}
         ).encode()
-        singles = [
-            json.dumps(
-                {
-                    **common,
-                    "trajectory": [dict(zip("txy", p[:3], strict=True)) for p in path.tolist()],
-                }
-            ).encode()
-            for path in batch
-        ]
-        for body in (plain, boxed, singles[0]):  # warm: tubes drawn, caches filled
-            timed_post(client, body)
-        rows: dict[str, list[float]] = {k: [] for k in ("batch", "batch_server", "fp", "fp_server")}
-        series, verdicts, hits = [], {}, 0
-        for _ in range(args.rounds):
-            for name, body in (("batch", plain), ("fp", boxed)):
-                elapsed, server, answer = timed_post(client, body)
-                rows[name].append(elapsed)
-                rows[f"{name}_server"].append(server)
-                for result in answer["results"]:
-                    verdicts[result["verdict"]] = verdicts.get(result["verdict"], 0) + 1
-                if name == "batch":
-                    hits = sum(t["collision"] for r in answer["results"] for t in r["trajectories"])
-            if len(series) < args.single_series:
-                t0 = time.perf_counter()
-                for body in singles:
-                    timed_post(client, body)
-                series.append(time.perf_counter() - t0)
-    results = {name: stats(samples) for name, samples in rows.items()}
-    results["singles_series"] = stats(series)
-    results["verdicts"] = verdicts
-    results["trajectory_agent_pairs_colliding"] = hits
+        for path in batch
+    ]
+    for body in (*target.bodies.values(), target.singles[0]):  # warm: tubes drawn, caches filled
+        timed_post(target.client, body)
+
+
+def one_round(target: Target, singles: bool) -> None:
+    """One batch and one batch with footprints (and, if ``singles``, the series of single
+    checks) on ``target``."""
+    for name, body in target.bodies.items():
+        elapsed, server, answer = timed_post(target.client, body)
+        target.rows[name].append(elapsed)
+        target.rows[f"{name}_server"].append(server)
+        for result in answer["results"]:
+            target.verdicts[result["verdict"]] = target.verdicts.get(result["verdict"], 0) + 1
+        if name == "batch":
+            target.hits = sum(t["collision"] for r in answer["results"] for t in r["trajectories"])
+    if singles:
+        t0 = time.perf_counter()
+        for body in target.singles:
+            timed_post(target.client, body)
+        target.series.append(time.perf_counter() - t0)
+
+
+def summary(target: Target) -> dict:
+    results: dict = {name: stats(samples) for name, samples in target.rows.items()}
+    results["singles_series"] = stats(target.series)
+    results["verdicts"] = target.verdicts
+    results["trajectory_agent_pairs_colliding"] = target.hits
     results["singles_over_batch_p50_ratio"] = (
         results["singles_series"]["p50_ms"] / results["batch"]["p50_ms"]
     )
     return results
+
+
+def run(targets: list[Target], args: argparse.Namespace) -> dict:
+    """Every round on every target in turn; the results per target."""
+    for target in targets:
+        prepare(target, args)
+    for r in range(args.rounds):
+        for target in targets:
+            one_round(target, singles=r < args.single_series)
+    return {target.name: summary(target) for target in targets}
+
+
+def print_table(results: dict, args: argparse.Namespace) -> None:
+    label = f"{args.trajectories} x {args.points} points against {args.agents} agents"
+    print(f"batch checks: {label}, {args.rounds} rounds; p50 / p99 [ms]")
+    names = list(results)
+    print(f"{'measure':44s}" + "".join(f"{name:>24s}" for name in names))
+    for key, text in (
+        ("batch", "one batch request, client"),
+        ("batch_server", "one batch request, server"),
+        ("fp", "one batch request with footprints, client"),
+        ("fp_server", "one batch request with footprints, server"),
+        ("singles_series", f"{args.trajectories} single checks in a row, client"),
+    ):
+        cells = [
+            f"{results[n][key]['p50_ms']:.2f} / {results[n][key]['p99_ms']:.2f}" for n in names
+        ]
+        print(f"{text:44s}" + "".join(f"{cell:>24s}" for cell in cells))
+    for name in names:
+        ratio = results[name]["singles_over_batch_p50_ratio"]
+        print(f"{name}: single checks / batch (p50, same run) {ratio:.0f}x, "
+              f"per-agent verdicts {results[name]['verdicts']}")  # fmt: skip
 
 
 def main() -> None:
@@ -144,25 +203,23 @@ def main() -> None:
     parser.add_argument(
         "--single-series", type=int, default=5, help="series of single checks, one per round"
     )
+    parser.add_argument("--baseline", help="a git revision to measure side by side")
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "bench_batch.json")
     args = parser.parse_args()
-    with running_service(args.model.resolve()) as url:
-        results = run(url, args)
-    label = f"{args.trajectories} x {args.points} points against {args.agents} agents"
-    print(f"batch checks: {label}, {args.rounds} rounds")
-    print(f"{'measure':44s} {'p50 [ms]':>9s} {'p99 [ms]':>9s}")
-    for name, text in (
-        ("batch", "one batch request, client"),
-        ("batch_server", "one batch request, server"),
-        ("fp", "one batch request with footprints, client"),
-        ("fp_server", "one batch request with footprints, server"),
-        ("singles_series", f"{args.trajectories} single checks in a row, client"),
-    ):
-        print(f"{text:44s} {results[name]['p50_ms']:9.2f} {results[name]['p99_ms']:9.2f}")
-    print(f"single checks / batch (p50, same run): {results['singles_over_batch_p50_ratio']:.0f}x")
-    print(f"per-agent verdicts: {results['verdicts']}")
+    with ExitStack() as stack:
+        trees = [("working tree", ROOT)]
+        if args.baseline:
+            trees.append((f"baseline {args.baseline}", stack.enter_context(tree_of(args.baseline))))
+        targets = []
+        for name, root in trees:
+            url, _ = stack.enter_context(service_at(root, args.model.resolve()))
+            client = stack.enter_context(httpx.Client(base_url=url, timeout=60))
+            targets.append(Target(name, client))
+        results = run(targets, args)
+    print_table(results, args)
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(results, indent=2))
+    out = results["working tree"] if len(results) == 1 else results
+    args.out.write_text(json.dumps(out, indent=2))
     print(f"wrote {args.out}")
 
 

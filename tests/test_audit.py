@@ -371,3 +371,26 @@ def test_a_frames_positions_are_scored_together_as_each_set_measures_them() -> N
         for v, s in zip(versions, got, strict=True):
             want = v.conservative.clearance(np.array([[x, y]]), np.array([t - v.t0]))[0]
             assert s.distance_to_k == want and s.version == v.version and not s.exact
+
+
+def test_rolling_coverage_is_the_share_inside_over_the_last_window_positions() -> None:
+    from service.runtime.audit import RollingCoverage, Scored
+
+    rng = np.random.default_rng(3)
+    rolling, every = RollingCoverage(50), []
+    for size in rng.integers(0, 80, size=30):
+        batch = [
+            Scored(1, 0.5, float(d), 1.5, False, "car") for d in rng.normal(0.0, 1.5, size=size)
+        ]
+        every += batch
+        found = rolling.add(batch)
+        window = every[-50:]
+        expected = (
+            (
+                sum(s.distance_to_k <= 0.0 for s in window) / len(window),
+                sum(s.distance_to_k <= 1.5 for s in window) / len(window),
+            )
+            if window
+            else (1.0, 1.0)
+        )
+        assert found == expected

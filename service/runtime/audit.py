@@ -332,23 +332,17 @@ class RollingCoverage:
     def __init__(self, window: int) -> None:
         self._k: deque[bool] = deque(maxlen=window)
         self._c: deque[bool] = deque(maxlen=window)
-        self._in_k = 0
-        self._in_c = 0
         self._lock = threading.Lock()
 
     def add(self, scored: Sequence[Scored]) -> tuple[float, float]:
         """Add positions; the coverage of K and of C over the window after them."""
+        in_k = [s.distance_to_k <= 0.0 for s in scored]
+        in_c = [s.distance_to_k <= s.collision_radius for s in scored]
         with self._lock:
-            for s in scored:
-                if len(self._k) == self._k.maxlen:  # the oldest leaves as this one comes
-                    self._in_k -= self._k[0]
-                    self._in_c -= self._c[0]
-                self._k.append(s.in_k)
-                self._c.append(s.in_c)
-                self._in_k += s.in_k
-                self._in_c += s.in_c
+            self._k.extend(in_k)  # the oldest leave as these come
+            self._c.extend(in_c)
             n = len(self._k)
-            return (self._in_k / n, self._in_c / n) if n else (1.0, 1.0)
+            return (sum(self._k) / n, sum(self._c) / n) if n else (1.0, 1.0)
 
 
 def count_audited(

@@ -43,7 +43,7 @@ from reach.frames import paired_human_frames
 from reach.sets import BoxTubeSet, FRTSet
 from reach.union import box_members
 from service.runtime.metrics import Metrics
-from service.runtime.scheduler import FRTKey
+from service.runtime.scheduler import VERSIONS_PER_AGENT, FRTKey
 
 #: Slack on "the horizon covers t" (float round-off of timestamps on a 0.1 s grid).
 HORIZON_SLACK_S = 1e-9
@@ -216,8 +216,10 @@ def score_many(
     one vectorised call, the exact sets position by position, in one call each."""
     pairs: list[tuple[int, ServedVersion, float, FRTSet, bool]] = []
     for p, (_, _, t, versions) in enumerate(positions):
+        # Only an agent's latest versions' exact sets are cached: the older are not looked up.
+        cached_from = max((v.version for v in versions), default=0) - VERSIONS_PER_AGENT + 1
         for v in versions:
-            frt = exact_of(v.key)
+            frt = exact_of(v.key) if v.version >= cached_from else None
             usable = (
                 frt is not None
                 and frt.clearance_from_tubes

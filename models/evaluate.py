@@ -406,8 +406,10 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, float]:
         ),
         "network_cut_m2_max": max(r["network_cut_m2"] for r in rows),
         # Read by the service (``models.value_fields.network_decision``): where the network cuts
-        # nothing, it is not evaluated on the hot path.
-        "network_cuts": any(r["network_cut_m2"] > 1e-6 for r in rows),
+        # nothing, it is not evaluated on the hot path. A cut of less than one cell of the
+        # rollouts' grid (CELL_M squared) is below what this evaluation resolves: no accuracy
+        # figure above can show it, so it does not count as a cut.
+        "network_cuts": any(r["network_cut_m2"] >= CELL_M**2 for r in rows),
         "min_recall_cells_partition": min(r["partition_recall_cells"] for r in rows),
         "mean_iou_partition": float(np.mean([r["partition_iou"] for r in rows])),
         "p95_beyond_m_mean_partition": float(np.mean([r["partition_beyond_p95_m"] for r in rows])),

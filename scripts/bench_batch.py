@@ -13,9 +13,14 @@ waits for their exact sets, then alternates, ``--rounds`` times:
 Prints the medians and p99 of the batch at the client and at the server (``Server-Timing``), the
 time of the whole series of single checks, and their ratio; writes ``results/bench_batch.json``.
 
+``--kinds batch`` sends only the plain batches (``fp`` only those with footprints); ``--profile
+PATH`` samples this tree's service with py-spy during the rounds (py-spy's raw format: one stack a
+line with its count of samples).
+
 ``--baseline REV`` starts a second service from the files of git revision ``REV`` beside this
 tree's and sends every request of a round to both in turn, so that the two are measured side by
-side under the same load (the shared machine's p99 moves by tens of milliseconds between runs).
+side under the same load (on a shared machine the p99 moves between runs by more than a change
+may move it).
 """
 
 from __future__ import annotations
@@ -23,6 +28,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import signal
+import subprocess
 import sys
 import time
 from contextlib import ExitStack
@@ -151,23 +158,35 @@ def one_round(target: Target, singles: bool) -> None:
 
 
 def summary(target: Target) -> dict:
-    results: dict = {name: stats(samples) for name, samples in target.rows.items()}
-    results["singles_series"] = stats(target.series)
+    results: dict = {name: stats(samples) for name, samples in target.rows.items() if samples}
     results["verdicts"] = target.verdicts
     results["trajectory_agent_pairs_colliding"] = target.hits
-    results["singles_over_batch_p50_ratio"] = (
-        results["singles_series"]["p50_ms"] / results["batch"]["p50_ms"]
-    )
+    if target.series:
+        results["singles_series"] = stats(target.series)
+    if target.series and "batch" in results:
+        results["singles_over_batch_p50_ratio"] = (
+            results["singles_series"]["p50_ms"] / results["batch"]["p50_ms"]
+        )
     return results
 
 
-def run(targets: list[Target], args: argparse.Namespace) -> dict:
-    """Every round on every target in turn; the results per target."""
+def run(targets: list[Target], args: argparse.Namespace, pid: int) -> dict:
+    """Every round on every target in turn (the first, of process ``pid``, sampled by py-spy
+    with ``--profile``); the results per target."""
     for target in targets:
         prepare(target, args)
+    spy = None
+    if args.profile:
+        spy = subprocess.Popen(
+            [str(Path(sys.executable).parent / "py-spy"), "record", "-p", str(pid),
+             "-o", str(args.profile), "-f", "raw", "-r", "200", "--nonblocking"],
+        )  # fmt: skip
     for r in range(args.rounds):
         for target in targets:
             one_round(target, singles=r < args.single_series)
+    if spy is not None:
+        spy.send_signal(signal.SIGINT)
+        spy.wait(timeout=60)
     return {target.name: summary(target) for target in targets}
 
 
@@ -188,7 +207,7 @@ def print_table(results: dict, args: argparse.Namespace) -> None:
         ]
         print(f"{text:44s}" + "".join(f"{cell:>24s}" for cell in cells))
     for name in names:
-        ratio = results[name]["singles_over_batch_p50_ratio"]
+        ratio = results[name].get("singles_over_batch_p50_ratio", math.nan)
         print(f"{name}: single checks / batch (p50, same run) {ratio:.0f}x, "
               f"per-agent verdicts {results[name]['verdicts']}")  # fmt: skip
 
@@ -203,6 +222,8 @@ def main() -> None:
     parser.add_argument(
         "--single-series", type=int, default=5, help="series of single checks, one per round"
     )
+    parser.add_argument("--kinds", default="batch,fp", help="batch, fp or both (comma-separated)")
+    parser.add_argument("--profile", type=Path, help="py-spy this tree's service (raw stacks)")
     parser.add_argument("--baseline", help="a git revision to measure side by side")
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "bench_batch.json")
     args = parser.parse_args()
@@ -210,12 +231,13 @@ def main() -> None:
         trees = [("working tree", ROOT)]
         if args.baseline:
             trees.append((f"baseline {args.baseline}", stack.enter_context(tree_of(args.baseline))))
-        targets = []
+        targets, pids = [], []
         for name, root in trees:
-            url, _ = stack.enter_context(service_at(root, args.model.resolve()))
+            url, pid = stack.enter_context(service_at(root, args.model.resolve()))
             client = stack.enter_context(httpx.Client(base_url=url, timeout=60))
             targets.append(Target(name, client))
-        results = run(targets, args)
+            pids.append(pid)
+        results = run(targets, args, pids[0])
     print_table(results, args)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     out = results["working tree"] if len(results) == 1 else results

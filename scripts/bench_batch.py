@@ -123,12 +123,13 @@ def prepare(target: Target, args: argparse.Namespace) -> None:
             json=observation(rng, k),
         ).raise_for_status()
     common = {"agent_ids": agents, "mode": "time_indexed", "deadline_ms": 1000}
-    target.bodies["batch"] = json.dumps(
-        {**common, "trajectories": as_columns(batch, False)}
-    ).encode()
-    target.bodies["fp"] = json.dumps(
-        {**common, "trajectories": as_columns(batch, True), "footprint": FOOTPRINT}
-    ).encode()
+    kinds = args.kinds.split(",")
+    if "batch" in kinds:
+        plain = {**common, "trajectories": as_columns(batch, False)}
+        target.bodies["batch"] = json.dumps(plain).encode()
+    if "fp" in kinds:
+        boxed = {**common, "trajectories": as_columns(batch, True), "footprint": FOOTPRINT}
+        target.bodies["fp"] = json.dumps(boxed).encode()
     target.singles = [
         json.dumps(
             {**common, "trajectory": [dict(zip("txy", p[:3], strict=True)) for p in path.tolist()]}
@@ -202,6 +203,8 @@ def print_table(results: dict, args: argparse.Namespace) -> None:
         ("fp_server", "one batch request with footprints, server"),
         ("singles_series", f"{args.trajectories} single checks in a row, client"),
     ):
+        if key not in results[names[0]]:
+            continue
         cells = [
             f"{results[n][key]['p50_ms']:.2f} / {results[n][key]['p99_ms']:.2f}" for n in names
         ]

@@ -266,7 +266,8 @@ def observation_response(
     same = last_built.to_dict() == state.belief
     belief = last_built if same else Belief.from_dict(state.belief)
     probs, _ = belief_out(belief)
-    return ObservationResponse(
+    # Built from values of the right types (a frame answers a hundred): no second validation.
+    return ObservationResponse.model_construct(
         agent_id=state.agent_id,
         timestamp=state.timestamp,
         beta=belief.beta,
@@ -277,7 +278,7 @@ def observation_response(
         action_scored=request.observed_action is not None and state.frt_version > 1,
         frt_ready=services.scheduler.is_ready(applied.job.key),
         modes=modes_out(state.modes),
-        mode_mass=state.modes["mode_mass"] if state.modes else None,
+        mode_mass=float(state.modes["mode_mass"]) if state.modes else None,
     )
 
 

@@ -265,7 +265,9 @@ class ControlBoundsOut(Response):
 
     @classmethod
     def from_list(cls, values: list[float]) -> ControlBoundsOut:
-        return cls(**dict(zip(BOUND_COLUMNS, (float(v) for v in values), strict=True)))
+        """The eight bounds in contract order (``reach.contract.BOUND_COLUMNS``), as floats."""
+        pairs = zip(BOUND_COLUMNS, values, strict=True)
+        return cls.model_construct(**{column: float(v) for column, v in pairs})
 
 
 class BeliefOut(Response):

@@ -21,11 +21,16 @@ from shapely.affinity import rotate, translate
 from shapely.geometry import Point, box, shape
 
 from reach.footprint import MAX_DISCS, disc_centres, disc_cover, footprint_distances
+from service.api.routes.collision import as_recorded
 from service.flows.check_points import CheckPoints, check_points
 from service.runtime.settings import Settings
 from service.wire.batch_body import holds_booleans, parse_batch_check
 from service.wire.errors import FieldError
-from service.wire.schemas import CollisionCheckRequest, MultiCollisionCheckRequest
+from service.wire.schemas import (
+    CollisionCheckRequest,
+    CollisionCheckResponse,
+    MultiCollisionCheckRequest,
+)
 from tests.conftest import LiveServer
 
 STEPS = 6
@@ -504,3 +509,38 @@ def test_a_batch_read_in_bulk_has_the_models_points_and_errors(change: dict) -> 
 def test_the_bulk_parser_finds_every_boolean_token(raw: bytes, found: bool) -> None:
     assert holds_booleans(raw) is found
     assert found is any(token in raw for token in (b"true", b"false"))
+
+
+def test_recent_checks_keep_a_batchs_verdicts_without_its_entries() -> None:
+    entries = [
+        {
+            "collision": k == 1,
+            "first_collision_index": 0 if k == 1 else None,
+            "first_collision_time": 0.1 if k == 1 else None,
+            "min_clearance": -0.5 if k == 1 else 2.0,
+        }
+        for k in range(3)
+    ]
+    common = {
+        "first_collision_index": None,
+        "first_collision_time": None,
+        "clearance": [],
+        "mode": "tube",
+        "collision_radius": 1.0,
+        "beta": 1.0,
+        "frt_version": 1,
+        "conservative": False,
+        "horizon_end": 3.0,
+    }
+    batch = CollisionCheckResponse.model_construct(
+        collision=True, trajectories=entries, agent_id="a", **common
+    )
+    single = CollisionCheckResponse.model_construct(
+        collision=False, trajectories=None, agent_id="b", **common
+    )
+    kept = as_recorded([batch, single])
+    assert kept[1] is single
+    assert kept[0].trajectories is None and batch.trajectories == entries
+    assert kept[0].model_dump(exclude={"trajectories"}) == batch.model_dump(
+        exclude={"trajectories"}
+    )

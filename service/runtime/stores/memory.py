@@ -111,11 +111,12 @@ class InMemoryAgentStore:
         """The agent's next state and its pickle, or why it is refused (called under its
         lock). The state is the caller's (``fn``'s result): the store keeps only the pickle."""
         agent_id, fn, timestamp = update
-        current = None if entry is None else entry.state()
+        # The readers' shared copy (fn only reads it): an observation that has just read the
+        # agent's state shared is not unpickled again.
+        current = None if entry is None else entry.shared_state()
         try:
             if timestamp is not None and current is not None and timestamp <= current.timestamp:
                 raise StaleTimestampError(agent_id, timestamp, current.timestamp)
-            # fn gets a copy: a half-applied change it raises on never leaks into the store.
             new = fn(current)
             return new, _pickled(new)
         except APIError as exc:

@@ -15,8 +15,10 @@ from typing import Any, Protocol, runtime_checkable
 
 from service.wire.errors import APIError
 
-#: Builds the agent's next state from its current one (``None`` for a new agent). It may raise
-#: (an :class:`~service.wire.errors.APIError` such as a 422) to abort the update; nothing is written then.
+#: Builds the agent's next state from its current one (``None`` for a new agent), which it reads
+#: and never modifies (the store may share it with readers of ``get_many(shared=True)``). It may
+#: raise (an :class:`~service.wire.errors.APIError` such as a 422) to abort the update; nothing is
+#: written then.
 UpdateFn = Callable[["AgentState | None"], "AgentState"]
 #: One agent's part of a batched update (:meth:`AgentStore.update_many`): its id, its
 #: :data:`UpdateFn` and the timestamp its update must be later than the stored one's (None: none).

@@ -327,15 +327,15 @@ def _evaluate(geometry, xs, ys, which, group, p, out):
         )
         return out[first]
     least = np.inf
-    done = np.zeros(group, dtype=np.bool_)
+    done = 0  # a bit per probe measured (a footprint has at most 16 discs)
     for _ in range(group):
         i, bound = -1, np.inf
         for g in range(group):
-            if not done[g] and out[first + g] < bound:
+            if not (done >> g) & 1 and out[first + g] < bound:
                 i, bound = first + g, out[first + g]
         if i < 0 or bound >= least:
             break
-        done[i - first] = True
+        done |= 1 << (i - first)
         out[i] = _signed(
             segments, segment_starts, chunk_boxes, chunk_starts, which[i], xs[i], ys[i]
         )

@@ -192,3 +192,29 @@ def test_tubes_of_is_the_sets_tube_indices_made_distinct(
     expected_tubes, expected_which = frt.tubes_present(frt.tube_indices(times))
     np.testing.assert_array_equal(tubes, expected_tubes)
     np.testing.assert_array_equal(which, expected_which)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), threshold=st.floats(-2.0, 6.0), group=st.integers(2, 6))
+def test_surrogates_of_points_of_several_probes_keep_the_least_and_first_collision(
+    seed: int, threshold: float, group: int
+) -> None:
+    """A point is ``group`` probes (a footprint's discs) of one polygon; its value their least."""
+    rng = np.random.default_rng(seed)
+    geometries = [random_geometry(rng) for _ in range(3)]
+    packed = pack_rings(geometries)
+    lengths = rng.integers(1, 30, size=12)
+    points = int(lengths.sum())
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    centres = rng.uniform([-15.0, -15.0], [50.0, 25.0], size=(points, 2))
+    xy = (centres[:, None, :] + rng.normal(0.0, 1.5, size=(points, group, 2))).reshape(-1, 2)
+    which = np.repeat(rng.integers(0, len(geometries), points), group)
+    exact = signed_distances_packed(packed, which, xy).reshape(points, group).min(axis=1)
+    probes = trajectory_surrogates(packed, which, xy, starts, threshold, group)
+    assert (probes <= signed_distances_packed(packed, which, xy) + 1e-12).all()
+    surrogate = probes.reshape(points, group).min(axis=1)
+    for a, b in zip(starts, np.append(starts[1:], points), strict=True):
+        assert surrogate[a:b].min() == exact[a:b].min()
+        below_exact = np.flatnonzero(exact[a:b] < threshold)
+        below_surrogate = np.flatnonzero(surrogate[a:b] < threshold)
+        assert below_surrogate[:1].tolist() == below_exact[:1].tolist()

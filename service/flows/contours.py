@@ -4,7 +4,9 @@ Also the steps every read of one agent's set shares (:func:`parse_times`, :func:
 :func:`agent_set`), which ``service.flows.constraints`` reads its set with too.
 
 An agent answered under map assumptions (``service.flows.road``) has its contours drawn from its
-set cut by them, and the answer lists them (C = cut K ⊕ R_col).
+set cut by them, and the answer lists them (C = cut K ⊕ R_col); asked with ``include_uncut``, the
+answer carries the contours of the set before the cut beside them (``uncut``), which contain the
+cut ones.
 """
 
 from __future__ import annotations
@@ -92,12 +94,19 @@ class AgentSet:
     def on_the_road(self, services: Services) -> tuple[FRTSet, bool, list[str]]:
         """:meth:`frt` cut by the agent's map assumptions, and those it was cut by (none without
         a map); blocking, call from a thread."""
+        cut, _, conservative, used = self.cut_and_uncut(services)
+        return cut, conservative, used
+
+    def cut_and_uncut(self, services: Services) -> tuple[FRTSet, FRTSet, bool, list[str]]:
+        """(:meth:`frt` cut by the agent's map assumptions, :meth:`frt` itself, whether it is the
+        conservative set, the assumptions it was cut by); the first two are one set where none
+        cut it. Blocking, call from a thread."""
         frt, conservative = self.frt()
         entry, active = agent_assumptions(services, self.state)
         if entry is None:
-            return frt, conservative, []
+            return frt, frt, conservative, []
         cut, used = agent_cut(services, entry, services.job_for(self.state).key, frt, active)
-        return cut, conservative, used
+        return cut, frt, conservative, used
 
 
 async def agent_set(
@@ -135,15 +144,24 @@ async def agent_contours(
     query: ContourQuery,
     collision_radius: float | None = None,
     location: str = "query",
+    include_uncut: bool = False,
 ) -> ContoursResponse:
+    """The agent's contours, from its set cut by its map assumptions; with ``include_uncut`` the
+    set's contours before the cut beside them (``uncut``: null where nothing cut it), else no
+    ``uncut`` field at all."""
     served = await agent_set(services, agent_id, query.slices, collision_radius, location)
     state, radius = served.state, served.collision_radius
 
-    def compute() -> tuple[Contours, bool, list[str]]:
-        frt, conservative, assumptions = served.on_the_road(services)
-        return build(frt, query, radius, state.timestamp), conservative, assumptions
+    def compute() -> tuple[Contours, Contours | None, bool, list[str]]:
+        cut, whole, conservative, assumptions = served.cut_and_uncut(services)
+        contours = build(cut, query, radius, state.timestamp)
+        uncut = None
+        if include_uncut and assumptions:
+            uncut = build(whole, query, radius, state.timestamp)
+        return contours, uncut, conservative, assumptions
 
-    contours, conservative, assumptions = await run_in_threadpool(compute)
+    contours, uncut, conservative, assumptions = await run_in_threadpool(compute)
+    extra = {"uncut": uncut} if include_uncut else {}
     return ContoursResponse(
         **contours.model_dump(),
         agent_id=agent_id,
@@ -153,4 +171,5 @@ async def agent_contours(
         collision_radius=radius,
         conservative=conservative,
         assumptions=assumptions,
+        **extra,
     )

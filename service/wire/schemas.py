@@ -664,6 +664,20 @@ class ContoursResponse(Contours):
         description="the map assumptions the contours' set was cut by (docs/maps.md); empty "
         "without a map",
     )
+    uncut: Contours | None = Field(
+        None,
+        description="with include_uncut=true: the contours of the set before the cut (it "
+        "contains the cut one), the same times and parts; null when no assumption cut the set. "
+        "Absent without include_uncut",
+    )
+
+    # No return annotation: the OpenAPI schema keeps the model's fields.
+    @model_serializer(mode="wrap")
+    def _drop_unasked_uncut(self, handler: Any):
+        data = handler(self)
+        if "uncut" not in self.model_fields_set:
+            data.pop("uncut", None)
+        return data
 
 
 # ---------------------------------------------------------------------------------- constraints
@@ -714,6 +728,10 @@ class ConstraintsResponse(Response):
     horizon_s: float
     collision_radius: float
     conservative: bool
+    assumptions: list[str] = Field(
+        default_factory=list,
+        description="the map assumptions the pieces hold under (docs/maps.md); none without a map",
+    )
     max_sides: int
     max_pieces: int
     slices: list[ConstraintSlice]
@@ -873,3 +891,23 @@ class MapResponse(Response):
 class MapDeleteResponse(Response):
     map_id: str
     deleted: bool
+
+
+class MapGeoJSONResponse(Response):
+    """A map's geometry within a box, for drawing: a GeoJSON FeatureCollection in the map's
+    (world) frame, with the box and the simplification it was drawn at as foreign members."""
+
+    type: Literal["FeatureCollection"] = "FeatureCollection"
+    features: list[dict[str, Any]] = Field(
+        description="GeoJSON Features: the drivable area D within the box (properties.kind "
+        "drivable_area), each lane's area (kind lane) and centre line (kind centerline) with "
+        "lane_id, lane_type, is_intersection"
+    )
+    map_id: str
+    bbox: list[float] = Field(description="[x_min, y_min, x_max, y_max] the geometry is cut to")
+    extent: list[float] = Field(description="the map's extent, as its summary has it")
+    simplify_m: float = Field(
+        description="the simplification tolerance used (metres): the one asked for, doubled "
+        "while the answer held more vertices than the server's cap"
+    )
+    vertices: int = Field(description="vertices in the features")

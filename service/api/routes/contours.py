@@ -29,9 +29,18 @@ async def agent_contours(
     ] = None,
     tube: Annotated[bool, Query(description="include the whole-horizon tube")] = True,
     collision_radius: CollisionRadiusQuery = None,
+    include_uncut: Annotated[
+        bool,
+        Query(
+            description="also the contours of the set before the map assumptions cut it "
+            "(`uncut`, null when none cut it)"
+        ),
+    ] = False,
 ) -> ContoursResponse:
     """The whole-horizon tube and the requested time slices, in the world frame."""
     query = contours.parse_query(
         joined("slices", slices, 4096), joined("include", include, 16), tube
     )
-    return await contours.agent_contours(services, agent_id, query, collision_radius)
+    return await contours.agent_contours(
+        services, agent_id, query, collision_radius, include_uncut=include_uncut
+    )

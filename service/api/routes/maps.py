@@ -4,12 +4,18 @@ from __future__ import annotations
 
 from typing import Annotated
 
-from fastapi import APIRouter, Path, Request
+from fastapi import APIRouter, Path, Query, Request
 
 from service.api.routes.json_body import body_openapi
 from service.api.routes.params import ServicesDep
 from service.flows import maps
-from service.wire.schemas import AGENT_ID_PATTERN, MapArchive, MapDeleteResponse, MapResponse
+from service.wire.schemas import (
+    AGENT_ID_PATTERN,
+    MapArchive,
+    MapDeleteResponse,
+    MapGeoJSONResponse,
+    MapResponse,
+)
 
 router = APIRouter(prefix="/v1/maps", tags=["maps"])
 
@@ -32,3 +38,30 @@ async def get_map(map_id: MapIdPath, services: ServicesDep) -> MapResponse:
 async def delete_map(map_id: MapIdPath, services: ServicesDep) -> MapDeleteResponse:
     """Forget the map and the sets cut by it."""
     return await maps.delete_map(services, map_id)
+
+
+@router.get("/{map_id}/geojson", response_model=MapGeoJSONResponse)
+async def map_geojson(
+    map_id: MapIdPath,
+    services: ServicesDep,
+    bbox: Annotated[
+        str | None,
+        Query(
+            max_length=256,
+            description="x_min,y_min,x_max,y_max in metres, the map's frame, at most "
+            f"{maps.MAX_BBOX_M:g} m on a side (default: the map's extent)",
+        ),
+    ] = None,
+    simplify_m: Annotated[
+        float,
+        Query(
+            ge=0.0,
+            le=10.0,
+            description="simplification tolerance, metres (doubled while the "
+            f"answer holds more than {maps.MAX_VERTICES} vertices)",
+        ),
+    ] = 0.1,
+    lanes: Annotated[bool, Query(description="each lane's area and centre line too")] = True,
+) -> MapGeoJSONResponse:
+    """The drivable area (and lanes) within the box, as a GeoJSON FeatureCollection."""
+    return await maps.map_geojson(services, map_id, bbox, simplify_m, lanes)

@@ -179,6 +179,25 @@ def test_contours_are_cut_to_the_road_and_labelled(client, pair) -> None:
         assert shape(cut["K"]).difference(shape(whole["K"]).buffer(0.01)).area == 0.0
 
 
+def _pieces(slice_: dict[str, Any]) -> shapely.Geometry:
+    return shapely.union_all([Polygon(p["vertices"]) for p in slice_["pieces"]])
+
+
+def test_constraints_hold_the_cut_set_and_list_its_assumptions(client, pair) -> None:
+    """Each time's pieces contain the cut K ⊕ R_col the contours draw (shapely), list the cut's
+    assumptions, and cover clearly less than the uncut set's pieces."""
+    query = "slices=1.0,2.5&max_pieces=4"
+    cut = client.get(f"/v1/agents/road-car/constraints?{query}").json()
+    plain = client.get(f"/v1/agents/plain-car/constraints?{query}").json()
+    contours = client.get("/v1/agents/road-car/frt?slices=1.0,2.5").json()
+    assert cut["assumptions"] == BOTH and plain["assumptions"] == []
+    assert cut["frt_version"] == contours["frt_version"]
+    for mine, whole, drawn in zip(cut["slices"], plain["slices"], contours["slices"], strict=True):
+        held = shape(drawn["K"]).buffer(RADIUS - 0.01)
+        assert held.difference(_pieces(mine).buffer(0.01)).area == 0.0
+        assert _pieces(mine).area < 0.8 * _pieces(whole).area
+
+
 def test_the_assumptions_follow_the_config_and_the_class(client, pair) -> None:
     observe(client, "da-car", 0.0, ON_ROAD, map_id="austin", config={"assumptions": ["drivable_area"]})  # fmt: skip
     observe(client, "no-car", 0.0, ON_ROAD, map_id="austin", config={"assumptions": []})

@@ -331,6 +331,9 @@ class AgentConstraints(Response):
     collision_radius: float
     #: True when built from a set containing the exact one (the exact set was not ready in time).
     conservative: bool
+    #: The map assumptions the pieces hold under (the agent's set cut to the road); empty without
+    #: a map.
+    assumptions: tuple[str, ...] = ()
     max_sides: int
     max_pieces: int
     slices: list[ConstraintSlice]

@@ -57,15 +57,16 @@ async def agent_constraints(
     services: Services, agent_id: str, query: ConstraintQuery, location: str = "query"
 ) -> ConstraintsResponse:
     """The agent's constraints from its exact set if ready within ``FRT_EXACT_TIMEOUT_S``, else
-    from the conservative set (which contains it). Changes nothing."""
+    from the conservative set (which contains it), cut by the agent's map assumptions where it
+    names a map (``AgentSet.on_the_road``). Changes nothing."""
     served = await agent_set(services, agent_id, query.slices, query.collision_radius, location)
     state, radius = served.state, served.collision_radius
 
-    def compute() -> tuple[list[ConstraintSlice], bool]:
-        frt, conservative = served.frt()
-        return build(frt, query, radius, state.timestamp), conservative
+    def compute() -> tuple[list[ConstraintSlice], bool, list[str]]:
+        frt, conservative, assumptions = served.on_the_road(services)
+        return build(frt, query, radius, state.timestamp), conservative, assumptions
 
-    slices, conservative = await run_in_threadpool(compute)
+    slices, conservative, assumptions = await run_in_threadpool(compute)
     return ConstraintsResponse(
         agent_id=agent_id,
         frt_version=state.frt_version,
@@ -73,6 +74,7 @@ async def agent_constraints(
         horizon_s=served.horizon_s,
         collision_radius=radius,
         conservative=conservative,
+        assumptions=assumptions,
         max_sides=query.max_sides,
         max_pieces=query.max_pieces,
         slices=slices,

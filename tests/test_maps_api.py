@@ -167,8 +167,14 @@ def test_the_stateless_frt_is_cut_by_a_named_map(client: TestClient) -> None:
     trajectory = [{"t": 2.0, "x": point.x, "y": point.y}]
     plain = frt(client, ON_ROAD, trajectory=trajectory)
     cut = frt(client, ON_ROAD, trajectory=trajectory, map_id="austin")
-    assert plain["assumptions"] == [] and cut["assumptions"] == ["drivable_area"]
+    assert plain["assumptions"] == [] and cut["assumptions"] == ["drivable_area", "reachable_lanes"]
     assert plain["collision"]["collision"] and not cut["collision"]["collision"]
+    road_only = frt(client, ON_ROAD, map_id="austin", assumptions=["drivable_area"])
+    assert road_only["assumptions"] == ["drivable_area"]
+    k_road_only = shape(road_only["contours"]["tube"]["K"])
+    k_both = shape(cut["contours"]["tube"]["K"])
+    assert k_both.difference(k_road_only.buffer(0.01)).area == 0.0  # R ∩ L inside R
+    assert k_both.area < k_road_only.area
     assert cut["collision"]["clearance"][0] > 2.0
     for part in ("K", "C"):
         k_cut, k_whole = (

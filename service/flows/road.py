@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from reach.agent_classes import DEFAULT_CLASS
 from reach.lanes import HEADING_TOLERANCE, REACHABLE_LANES, VEHICLE_LANE_TYPES
 from reach.road_cut import DRIVABLE_AREA
 from reach.sets import FRTSet
@@ -61,20 +62,26 @@ def on_the_road(
     entry: MapEntry | None,
     key: Hashable,
     frt: FRTSet,
-    xy: tuple[float, float],
-    agent_class: str,
+    pose: HumanState,
+    configured: Sequence[str],
 ) -> tuple[FRTSet, list[str]]:
-    """``frt`` cut by the map's drivable area and the assumptions it was cut by, for a state at
-    world position ``xy``: ``frt`` itself and none without a map or off the road. The cut is
-    kept per (``key``, whether ``frt`` is conservative) while ``frt`` is the set answered from."""
+    """A car's ``frt`` (the stateless endpoint's, for a state at ``pose``) cut by the
+    ``configured`` assumptions its pose keeps, and those it was cut by: ``frt`` itself and none
+    without a map or where the pose keeps none (a broken one is counted). The cut is kept per
+    (``key``, whether ``frt`` is conservative) while ``frt`` is the set answered from."""
     if entry is None:
         return frt, []
-    if not entry.road.on_road(xy[0], xy[1], services.maps.margin):
+    held = []
+    for name in CLASS_ASSUMPTIONS[DEFAULT_CLASS]:
+        holds = _tested(services, entry, name, pose) if name in configured else None
+        if holds is False:
+            services.metrics.assumption_violations.labels(name, DEFAULT_CLASS).inc()
+        elif holds:
+            held.append(name)
+    if not held:
         services.metrics.road_cuts.labels("off_road").inc()
-        services.metrics.assumption_violations.labels(DRIVABLE_AREA, agent_class).inc()
         return frt, []
-    services.metrics.road_cuts.labels("cut").inc()
-    return services.maps.cut(entry, (key, frt.conservative), frt), [DRIVABLE_AREA]
+    return agent_cut(services, entry, key, frt, held)
 
 
 def _tested(services: Services, entry: MapEntry, name: str, pose: HumanState) -> bool | None:

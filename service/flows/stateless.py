@@ -74,6 +74,7 @@ async def stateless_frt(services: Services, request: FRTRequest, arrival: float)
         check_slices("contours.slices", query.slices, horizon, settings)
     check_trajectory("trajectory", request.trajectory, settings)
     road = map_entry(services, request.map_id)
+    configured = settings.assumptions if request.assumptions is None else tuple(request.assumptions)
     radius = (
         request.collision_radius
         if request.collision_radius is not None
@@ -91,9 +92,7 @@ async def stateless_frt(services: Services, request: FRTRequest, arrival: float)
 
     def compute() -> FRTResponse:
         frt = exact if exact is not None else services.conservative(job)
-        frt, assumptions = on_the_road(
-            services, road, job.key, frt, (state.x, state.y), DEFAULT_CLASS
-        )
+        frt, assumptions = on_the_road(services, road, job.key, frt, state, configured)
         return FRTResponse(
             control_bounds=ControlBoundsOut.from_list(bounds.tolist()),
             beta=request.beta if request.control_bounds is None else None,

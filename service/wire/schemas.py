@@ -769,8 +769,14 @@ class FRTRequest(Request):
     )
     map_id: AgentId | None = Field(
         None,
-        description="a registered map (PUT /v1/maps/{map_id}): the set is cut to its drivable "
-        "area while the state is on it (docs/maps.md)",
+        description="a registered map (PUT /v1/maps/{map_id}): the car's set is cut by the "
+        "assumptions its state keeps (docs/maps.md)",
+    )
+    assumptions: list[Assumption] | None = Field(
+        None,
+        max_length=2,
+        description="with map_id: the map assumptions to answer under (default: the server's "
+        "FRT_ASSUMPTIONS); those the state breaks are dropped",
     )
 
 

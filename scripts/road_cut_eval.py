@@ -113,8 +113,9 @@ def measure(client: TestClient, obs: dict[str, Any], gamma: float, map_id: str |
         "timestamp": obs["timestamp"], "state": obs["state"], "prediction": obs["prediction"],
         "beta": 1.0, "gamma": gamma, "collision_radius": 0.0, "trajectory": obs["future"],
     }  # fmt: skip
-    if map_id is not None:
+    if map_id is not None:  # the drivable area alone; the lanes are cut in-process below
         body["map_id"] = map_id
+        body["assumptions"] = ["drivable_area"]
     tube = _post(client, {**body, "mode": "tube", "contours": {"include": ["K"]}})
     timed = _post(client, {**body, "mode": "time_indexed"})
     k_set = shape(tube["contours"]["tube"]["K"])

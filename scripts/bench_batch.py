@@ -15,7 +15,9 @@ time of the whole series of single checks, and their ratio; writes ``results/ben
 
 ``--kinds batch`` sends only the plain batches (``fp`` only those with footprints); ``--profile
 PATH`` samples this tree's service with py-spy during the rounds (py-spy's raw format: one stack a
-line with its count of samples).
+line with its count of samples) and prints the share of the requests' samples each phase of a
+batch takes (:data:`PHASES`; the response body's write to the socket, after ``Server-Timing`` is
+taken, left out; run it with ``--single-series 0``, or single checks count too).
 
 ``--baseline REV`` starts a second service from the files of git revision ``REV`` beside this
 tree's and sends every request of a round to both in turn, so that the two are measured side by
@@ -46,6 +48,16 @@ from scripts.bench import server_seconds, service_at, stats  # noqa: E402
 from scripts.bench_frames import tree_of  # noqa: E402
 
 FOOTPRINT = {"length": 4.8, "width": 1.9, "rear_axle_to_center": 1.4}
+#: A batch's phases for ``--profile``: a sample counts for the first whose frames one names.
+PHASES = (
+    ("reading the body: orjson, the columns in bulk", ("parse_batch_check",)),
+    ("the ring kernel", ("trajectory_surrogates (reach/packed_rings",)),
+    ("tubes of the points' times", ("tubes_of (", "_fit_tubes_to_deadline", "_note_tube_demand")),
+    ("the answers' entries", ("trajectory_answers",)),
+    ("the rest of the answers", ("_respond_all",)),
+    ("the answers' JSON", ("ModelJSONResponse.render",)),
+    ("recording the check for the viewer", ("RecentChecks.record",)),
+)
 
 
 def observation(rng: np.random.Generator, k: int) -> dict:
@@ -188,7 +200,24 @@ def run(targets: list[Target], args: argparse.Namespace, pid: int) -> dict:
     if spy is not None:
         spy.send_signal(signal.SIGINT)
         spy.wait(timeout=60)
+        print_shares(args.profile)
     return {target.name: summary(target) for target in targets}
+
+
+def print_shares(path: Path) -> None:
+    """The share of the requests' samples in ``path`` (py-spy raw) each of :data:`PHASES` takes."""
+    counts = dict.fromkeys([name for name, _ in PHASES] + ["ASGI, middleware, the rest"], 0)
+    total = 0
+    for line in path.read_text().splitlines():
+        stack, _, samples = line.rpartition(" ")
+        if "run_asgi" not in stack or "RequestResponseCycle.send" in stack:
+            continue
+        total += int(samples)
+        phase = next((n for n, keys in PHASES if any(k in stack for k in keys)), None)
+        counts[phase or "ASGI, middleware, the rest"] += int(samples)
+    print(f"where a request's time goes ({total} samples):")
+    for name, count in sorted(counts.items(), key=lambda item: -item[1]):
+        print(f"  {100.0 * count / max(total, 1):5.1f} %  {name}")
 
 
 def print_table(results: dict, args: argparse.Namespace) -> None:

@@ -118,17 +118,28 @@ def measure(client: TestClient, obs: dict[str, Any], gamma: float, map_id: str |
         body["assumptions"] = ["drivable_area"]
     tube = _post(client, {**body, "mode": "tube", "contours": {"include": ["K"]}})
     timed = _post(client, {**body, "mode": "time_indexed"})
-    k_set = shape(tube["contours"]["tube"]["K"])
-    d_tube = np.asarray(tube["collision"]["clearance"])
-    d_time = np.asarray(timed["collision"]["clearance"])
+    return figures(
+        np.asarray(tube["collision"]["clearance"]),
+        np.asarray(timed["collision"]["clearance"]),
+        shape(tube["contours"]["tube"]["K"]),
+        tube["assumptions"],
+        bool(tube["conservative"] or timed["conservative"]),
+    )
+
+
+def figures(
+    d_tube: np.ndarray, d_time: np.ndarray, k_set: Any, assumptions: list[str], conservative: bool
+) -> dict:
+    """One observation's coverage (from the future positions' clearances over the whole tube and
+    at their times) and area of K and C."""
     return {
         "in_c": float(np.mean(d_tube <= COLLISION_RADIUS_M)),
         "in_c_time": float(np.mean(d_time <= COLLISION_RADIUS_M)),
         "in_k_time": float(np.mean(d_time <= 0.0)),
         "area_c": float(k_set.buffer(COLLISION_RADIUS_M, quad_segs=8).area),
         "area_k": float(k_set.area),
-        "assumptions": tube["assumptions"],
-        "conservative": bool(tube["conservative"] or timed["conservative"]),
+        "assumptions": assumptions,
+        "conservative": conservative,
     }
 
 
@@ -157,17 +168,8 @@ def measure_lanes(
         assumptions = list(frt.assumptions)
     xy = np.array([[p["x"], p["y"]] for p in obs["future"]])
     t_rel = np.array([p["t"] for p in obs["future"]]) - obs["timestamp"]
-    d_tube, d_time = frt.clearance(xy), frt.clearance(xy, t_rel)
     k_set = shape(frt.geojson("tube", None, 0.0)["K"])
-    return {
-        "in_c": float(np.mean(d_tube <= COLLISION_RADIUS_M)),
-        "in_c_time": float(np.mean(d_time <= COLLISION_RADIUS_M)),
-        "in_k_time": float(np.mean(d_time <= 0.0)),
-        "area_c": float(k_set.buffer(COLLISION_RADIUS_M, quad_segs=8).area),
-        "area_k": float(k_set.area),
-        "assumptions": assumptions,
-        "conservative": conservative,
-    }
+    return figures(frt.clearance(xy), frt.clearance(xy, t_rel), k_set, assumptions, conservative)
 
 
 def _post(client: TestClient, body: dict[str, Any]) -> dict[str, Any]:

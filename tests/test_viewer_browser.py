@@ -26,12 +26,16 @@ from types import ModuleType
 
 import httpx
 import pytest
+import shapely
 from PIL import Image
 from shapely.geometry import Point, mapping, shape
 from websockets.sync.client import connect
 
 from tests.conftest import LiveServer
 from tests.fixtures.payloads import observation
+from tests.test_agent_maps import BOTH as MAP_ASSUMPTIONS
+from tests.test_agent_maps import body as map_observation
+from tests.test_maps_api import ON_ROAD, RAW
 
 pytestmark = pytest.mark.slow
 
@@ -98,6 +102,9 @@ class View:
         self.cx, self.cy, self.s = cx, cy, s
         page.evaluate(f"window.frtViewer.setView({cx}, {cy}, {s})")
         self.width, self.height = snapshot(page)["size"]
+
+    def world(self, px: float, py: float) -> tuple[float, float]:
+        return self.cx + (px - self.width / 2) / self.s, self.cy - (py - self.height / 2) / self.s
 
     def pixel(self, x: float, y: float) -> tuple[int, int]:
         px = self.width / 2 + (x - self.cx) * self.s
@@ -235,6 +242,94 @@ def test_the_set_is_drawn_where_the_api_says_and_follows_new_observations(
 
 def mapping_of(geometry: object) -> dict:
     return dict(mapping(geometry))
+
+
+MAP = "viewer-austin"
+
+
+def changed(before: Image.Image, after: Image.Image, xy: tuple[int, int]) -> bool:
+    """Whether any pixel of the 3 x 3 around ``xy`` differs between the two images."""
+    x, y = xy
+    return any(
+        max(
+            abs(a - b) for a, b in zip(before.getpixel((i, j)), after.getpixel((i, j)), strict=True)
+        )
+        > 30
+        for i in range(x - 1, x + 2)
+        for j in range(y - 1, y + 2)
+    )
+
+
+def test_the_map_is_drawn_under_the_sets_and_the_uncut_outline_beside_them(
+    page: chromium.Page, server: LiveServer
+) -> None:
+    """A car named with the shipped map: the road is drawn where the map's GeoJSON puts it, read
+    once for the view and not per frame; with the uncut set on, its outline appears beside the
+    cut set where the API's uncut C leaves the cut one."""
+    agent = "viewer-map-car"
+    with httpx.Client(base_url=server.url, timeout=20.0) as http:
+        r = http.put(f"/v1/maps/{MAP}", content=RAW, headers={"content-type": "application/json"})
+        assert r.status_code == 200, r.text
+        first = observe(http, agent, map_observation(1.0, ON_ROAD, map_id=MAP))
+        page.evaluate("window.frtViewer.setOptions({showSlice: false, showGrid: false})")
+        drawn = wait_drawn(page, agent, first["frt_version"])
+        assert drawn["mapId"] == MAP and drawn["assumptions"] == MAP_ASSUMPTIONS
+        view = View(page, cx=ON_ROAD["x"], cy=ON_ROAD["y"] + 10.0, s=12.0)
+        page.wait_for(
+            f"(m => m && m.drawable && !m.fetching)(window.frtViewer.snapshot().maps['{MAP}'])"
+        )
+        next_frame(page)
+        shown = snapshot(page)
+        assert shown["mapsDrawn"] == 1 and shown["maps"][MAP]["features"] > 0
+        style = page.evaluate("window.frtViewer.style")
+        background, road = rgb(style["background"]), rgb(style["mapFill"])
+
+        # Where the map's GeoJSON (read by the test) has road clear of lane lines and of the
+        # car's uncut C, the pixel is the road's fill; off the road and clear of C, background.
+        sets = http.get(f"/v1/agents/{agent}/frt", params={"include_uncut": "true"}).json()
+        cut_c, uncut_c = shape(sets["tube"]["C"]), shape(sets["uncut"]["tube"]["C"])
+        seen = shapely.box(*view.world(8, view.height - 8), *view.world(view.width - 8, 8))
+        bbox = ",".join(f"{v:.2f}" for v in seen.bounds)
+        geo = http.get(f"/v1/maps/{MAP}/geojson", params={"bbox": bbox, "simplify_m": 0}).json()
+        kinds = {k: [shape(f["geometry"]) for f in geo["features"] if f["properties"]["kind"] == k]
+                 for k in ("drivable_area", "lane", "centerline")}  # fmt: skip
+        d = shapely.union_all(kinds["drivable_area"])
+        lines = shapely.union_all([p.boundary for p in kinds["lane"]] + kinds["centerline"])
+        clear = uncut_c.buffer(1.0).union(Point(ON_ROAD["x"], ON_ROAD["y"]).buffer(3.0))
+        on_road = d.buffer(-0.5).difference(lines.buffer(0.5)).difference(clear)
+        off_road = seen.buffer(-2.0).difference(d.buffer(1.0)).difference(clear)
+        assert on_road.area > 5.0 and off_road.area > 5.0
+        image = pixels(page)
+        for region, want in ((on_road, road), (off_road, background)):
+            p = inside_point(mapping_of(region), (ON_ROAD["x"], ON_ROAD["y"]), margin_m=0.2)
+            assert_colour(image, view.pixel(p.x, p.y), want)
+
+        # Redrawing does not read the map again: it is read per view, not per frame.
+        fetches = snapshot(page)["stats"]["mapFetches"]
+        for colour in ("beta", "class", "beta", "class"):
+            page.evaluate(f"window.frtViewer.setOptions({{colour: '{colour}'}})")
+            next_frame(page)
+        assert snapshot(page)["stats"]["mapFetches"] == fetches
+
+        # The uncut outline: drawn along the uncut C where it runs clear of the cut set.
+        page.evaluate("window.frtViewer.setOptions({showUncut: true})")
+        page.wait_for(f"window.frtViewer.snapshot().agents['{agent}'].uncut")
+        next_frame(page)
+        with_uncut = pixels(page)
+        assert uncut_c.area > 1.2 * cut_c.area
+        edge = uncut_c.exterior if uncut_c.geom_type == "Polygon" else uncut_c.boundary
+        far = [edge.interpolate(k / 200, normalized=True) for k in range(200)]
+        far = [q for q in far if q.distance(cut_c) > 1.0 and seen.buffer(-1.0).contains(q)]
+        assert len(far) > 20
+        hits = [changed(image, with_uncut, view.pixel(q.x, q.y)) for q in far]
+        assert sum(hits) > 0.7 * len(hits), (sum(hits), len(hits))
+        inside = inside_point(sets["tube"]["K"], (ON_ROAD["x"], ON_ROAD["y"]), margin_m=0.6)
+        assert not changed(image, with_uncut, view.pixel(inside.x, inside.y))
+        page.evaluate("window.frtViewer.setOptions({showUncut: false, showGrid: true})")
+
+        http.delete(f"/v1/agents/{agent}")
+        page.wait_for("window.frtViewer.snapshot().mapsDrawn === 0")
+        http.delete(f"/v1/maps/{MAP}")
 
 
 AGENTS = 50

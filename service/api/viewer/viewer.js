@@ -9,6 +9,11 @@
 // cached paths, on requestAnimationFrame, only when something changed; planners' trajectories
 // checked in the last seconds (also in list_agents' answer) go on top. uPlot draws the selected
 // agent's beta and belief over time. The page's state is window.frtViewer (see `api` below).
+// Maps: for the maps the agents name, the page reads each map's extent once (GET /v1/maps/{id})
+// and its geometry within the view, padded (GET /v1/maps/{id}/geojson?bbox=...), again only when
+// the view leaves the box fetched or zooms in past twice its detail, and draws it under the sets,
+// muted. With "uncut set" on, contours are fetched with include_uncut=true and the set before the
+// map's cut is outlined, dotted, beside the cut one.
 
 const d3 = window.d3;
 const uPlot = window.uPlot;
@@ -20,6 +25,9 @@ const HISTORY = 240; // beta points kept per agent
 const FRAME_SAMPLES = 600;
 const SLICE_STEP_S = 0.5;
 const MAX_SLICES = 12;
+const MAP_MAX_BOX_M = 2000; // the server's cap on a map box's side
+const MAP_PAD = 0.5; // a map box reaches this share of the view beyond each side
+const MAP_RETRY_MS = 5000; // a map whose read failed is asked for again after this
 
 const STYLE = {
   background: "#f7f7f5",
@@ -34,6 +42,10 @@ const STYLE = {
   clearPath: "#1a9850", // a planner's trajectory clear of every agent's C
   hitPath: "#d73027", // ... and from its first point inside one
   markerPx: 9,
+  mapFill: "#dedbd2", // the drivable area, under everything but the grid
+  mapLane: "#c4c0b4", // lane outlines, one pixel
+  mapCentre: "#cfcbc0", // lane centre lines, dashed
+  uncutOutline: 0.7, // the uncut set's C, dotted
 };
 
 const params = new URLSearchParams(location.search);
@@ -60,8 +72,9 @@ const state = {
   slices: [],
   options: {
     colour: "class", showTube: true, showSlice: true, showGrid: true, showChecks: true,
-    sliceIndex: 2,
+    showMap: true, showUncut: false, sliceIndex: 2,
   },
+  maps: new Map(), // map id -> map record (see mapRecord)
   view: { cx: 0, cy: 0, s: 4, follow: true }, // fitted view: world centre, pixels per metre
   zoom: d3.zoomIdentity,
   width: 0,
@@ -72,7 +85,7 @@ const state = {
   stats: {
     polls: 0, pollMs: [], fetches: 0, fetchErrors: 0, inFlight: 0,
     frames: 0, drawMs: [], frameIntervalMs: [], lastFrameAt: null, maxLag: 0, lag: 0,
-    worstAgentLag: 0, maxWorstAgentLag: 0,
+    worstAgentLag: 0, maxWorstAgentLag: 0, mapFetches: 0, mapFetchErrors: 0,
   },
 };
 
@@ -136,6 +149,7 @@ function fitView() {
   state.zoom = d3.zoomIdentity;
   d3.select(canvas).property("__zoom", d3.zoomIdentity);
   state.dirty = true;
+  pumpMaps();
 }
 
 // ------------------------------------------------------------------------------ data
@@ -146,7 +160,7 @@ function upsertAgent(info, now) {
     agent = {
       id: info.agent_id, info, cls: info.agent_class || "car", version: 0, behindSince: now,
       contours: null, paths: null, contoursVersion: 0, contoursSlice: null, contoursAt: 0,
-      drawnVersion: 0,
+      drawnVersion: 0, uncutPaths: null, contoursUncut: false, assumptions: [],
       conservative: false,
       fetching: false, history: [],
     };
@@ -181,13 +195,16 @@ function onAgents(result) {
   state.checks = result.checks || [];
   state.dirty = true;
   pumpFetches();
+  pumpMaps();
 }
 
 const sliceTime = () => state.slices[state.options.sliceIndex];
 
 function wanted(agent, now) {
   if (agent.fetching) return false;
-  if (agent.version === agent.contoursVersion) return agent.contoursSlice !== sliceTime();
+  if (agent.version === agent.contoursVersion) {
+    return agent.contoursSlice !== sliceTime() || (state.options.showUncut && !agent.contoursUncut);
+  }
   return agent.info.frt_ready || now - agent.behindSince >= WAIT_READY_MS;
 }
 
@@ -206,7 +223,9 @@ async function fetchContours(agent) {
   agent.fetching = true;
   state.stats.inFlight += 1;
   const t = sliceTime();
-  const query = t === undefined ? "" : `&slices=${+t.toFixed(3)}`;
+  const uncut = state.options.showUncut;
+  const query = (t === undefined ? "" : `&slices=${+t.toFixed(3)}`) +
+    (uncut ? "&include_uncut=true" : "");
   const url = `${httpBase}/v1/agents/${encodeURIComponent(agent.id)}/frt?include=K,C${query}`;
   try {
     const response = await fetch(url, { headers: authHeaders });
@@ -217,6 +236,9 @@ async function fetchContours(agent) {
         agent.paths = pathsOf(body);
         agent.contoursVersion = body.frt_version;
         agent.contoursSlice = t;
+        agent.contoursUncut = uncut;
+        agent.uncutPaths = uncut && body.uncut ? pathsOf(body.uncut) : null;
+        agent.assumptions = body.assumptions || [];
         agent.contoursAt = performance.now();
         agent.behindSince = agent.contoursAt;
         agent.conservative = body.conservative;
@@ -311,6 +333,115 @@ function push(list, value, cap = FRAME_SAMPLES) {
   if (list.length > cap) list.shift();
 }
 
+// ------------------------------------------------------------------------------ maps
+
+// The world box the canvas shows: [x0, y0, x1, y1].
+function visibleBox() {
+  const { a, e, f } = matrix();
+  return [(0 - e) / a, (f - state.height) / a, (state.width - e) / a, f / a];
+}
+
+function meet(p, q) {
+  const box = [
+    Math.max(p[0], q[0]), Math.max(p[1], q[1]), Math.min(p[2], q[2]), Math.min(p[3], q[3]),
+  ];
+  return box[2] > box[0] && box[3] > box[1] ? box : null;
+}
+
+// At most `side` metres on a side, around the box's centre.
+function capped(box, side) {
+  const [cx, cy] = [(box[0] + box[2]) / 2, (box[1] + box[3]) / 2];
+  const hw = Math.min(box[2] - box[0], side) / 2;
+  const hh = Math.min(box[3] - box[1], side) / 2;
+  return [cx - hw, cy - hh, cx + hw, cy + hh];
+}
+
+const holds = (outer, inner) =>
+  outer[0] <= inner[0] && outer[1] <= inner[1] && outer[2] >= inner[2] && outer[3] >= inner[3];
+
+function mapRecord(id) {
+  let record = state.maps.get(id);
+  if (!record) {
+    record = {
+      id, extent: null, box: null, scale: 0, paths: null, features: 0, vertices: 0,
+      simplify: null, fetching: false, retryAt: 0, error: null,
+    };
+    state.maps.set(id, record);
+  }
+  return record;
+}
+
+const namedMaps = () =>
+  new Set([...state.agents.values()].map((a) => a.info.map_id).filter((id) => id));
+
+// Reads each named map's extent once, then its geometry around the view when the view has left
+// the box last read (or zoomed in past twice its detail): never per frame.
+function pumpMaps() {
+  if (!state.width || !state.options.showMap) return;
+  const now = performance.now();
+  const view = visibleBox();
+  const scale = matrix().a;
+  for (const id of namedMaps()) {
+    const record = mapRecord(id);
+    if (record.fetching || now < record.retryAt) continue;
+    if (!record.extent) {
+      fetchMap(record, null, scale);
+      continue;
+    }
+    const seen = meet(view, record.extent);
+    if (!seen) continue;
+    const needed = capped(seen, 0.8 * MAP_MAX_BOX_M);
+    if (record.box && holds(record.box, needed) && scale <= 2 * record.scale) continue;
+    const padX = MAP_PAD * (view[2] - view[0]);
+    const padY = MAP_PAD * (view[3] - view[1]);
+    const padded = [view[0] - padX, view[1] - padY, view[2] + padX, view[3] + padY];
+    fetchMap(record, capped(meet(padded, record.extent), MAP_MAX_BOX_M), scale);
+  }
+}
+
+function mapPaths(features) {
+  const path = (kind) => {
+    const chosen = features.filter((f) => f.properties.kind === kind);
+    if (!chosen.length) return null;
+    return toPath({ type: "FeatureCollection", features: chosen });
+  };
+  return { drivable: path("drivable_area"), lanes: path("lane"), centres: path("centerline") };
+}
+
+// box null: the map's summary (its extent); else its geometry within box, simplified to half a
+// pixel at the scale it is read for.
+async function fetchMap(record, box, scale) {
+  record.fetching = true;
+  const id = encodeURIComponent(record.id);
+  const simplify = Math.min(10, 0.5 / scale);
+  const url = box
+    ? `${httpBase}/v1/maps/${id}/geojson?bbox=${box.map((v) => +v.toFixed(2)).join(",")}` +
+      `&simplify_m=${+simplify.toPrecision(3)}`
+    : `${httpBase}/v1/maps/${id}`;
+  try {
+    const response = await fetch(url, { headers: authHeaders });
+    if (!response.ok) throw new Error(`${response.status}`);
+    const body = await response.json();
+    if (box) {
+      Object.assign(record, {
+        box, scale, paths: mapPaths(body.features), features: body.features.length,
+        vertices: body.vertices, simplify: body.simplify_m, error: null,
+      });
+      state.stats.mapFetches += 1;
+      state.dirty = true;
+    } else {
+      record.extent = body.extent;
+    }
+  } catch (err) {
+    record.error = String(err.message || err);
+    record.retryAt = performance.now() + MAP_RETRY_MS;
+    state.stats.mapFetchErrors += 1;
+  } finally {
+    record.fetching = false;
+  }
+  if (!box && record.extent) pumpMaps();
+}
+
 // ------------------------------------------------------------------------------ drawing
 
 function resize() {
@@ -322,6 +453,37 @@ function resize() {
   canvas.height = Math.round(rect.height * dpr);
   if (state.view.follow) fitView();
   state.dirty = true;
+  pumpMaps();
+}
+
+// The maps the agents name, under the sets: the road filled, lanes outlined, centre lines dashed.
+function drawMaps(dpr) {
+  const { a, e, f } = matrix();
+  const px = 1 / a;
+  ctx.setTransform(dpr * a, 0, 0, -dpr * a, dpr * e, dpr * f);
+  let drawn = 0;
+  for (const id of namedMaps()) {
+    const paths = (state.maps.get(id) || {}).paths;
+    if (!paths) continue;
+    if (paths.drivable) {
+      ctx.fillStyle = STYLE.mapFill;
+      ctx.fill(paths.drivable, "evenodd");
+    }
+    ctx.lineWidth = px;
+    if (paths.lanes) {
+      ctx.setLineDash([]);
+      ctx.strokeStyle = STYLE.mapLane;
+      ctx.stroke(paths.lanes);
+    }
+    if (paths.centres) {
+      ctx.setLineDash([4 * px, 4 * px]);
+      ctx.strokeStyle = STYLE.mapCentre;
+      ctx.stroke(paths.centres);
+    }
+    drawn += 1;
+  }
+  ctx.setLineDash([]);
+  state.mapsDrawn = drawn;
 }
 
 function drawGrid(dpr) {
@@ -363,23 +525,29 @@ function drawSets(agent, dpr) {
       ctx.fill(path, "evenodd");
     }
   };
-  const stroke = (path, width, dashed) => {
+  const stroke = (path, width, dash, alpha = STYLE.outline) => {
     if (!path) return;
-    ctx.setLineDash(dashed ? [6 * px, 4 * px] : []);
+    ctx.setLineDash(dash.map((d) => d * px));
     ctx.lineWidth = width * px;
-    ctx.strokeStyle = withAlpha(colour, STYLE.outline);
+    ctx.strokeStyle = withAlpha(colour, alpha);
     ctx.stroke(path);
   };
+  const dashes = agent.conservative ? [6, 4] : [];
+  const uncut = state.options.showUncut ? agent.uncutPaths : null;
+  const atSlice = (list) => list.find((s) => Math.abs(s.t - sliceTime()) < 1e-6);
   if (state.options.showTube) {
     fill(paths.tube.C, STYLE.tubeC);
     fill(paths.tube.K, STYLE.tubeK);
-    stroke(paths.tube.C, agent.id === state.selected ? 2 : 1, agent.conservative);
+    stroke(paths.tube.C, agent.id === state.selected ? 2 : 1, dashes);
+    if (uncut) stroke(uncut.tube.C, 1.5, [2, 3], STYLE.uncutOutline);
   }
-  const slice = paths.slices.find((s) => Math.abs(s.t - sliceTime()) < 1e-6);
+  const slice = atSlice(paths.slices);
   if (state.options.showSlice && slice) {
     fill(slice.C, STYLE.sliceC);
     fill(slice.K, STYLE.sliceK);
-    stroke(slice.C, 1, agent.conservative);
+    stroke(slice.C, 1, dashes);
+    const whole = uncut && atSlice(uncut.slices);
+    if (whole) stroke(whole.C, 1.5, [2, 3], STYLE.uncutOutline);
   }
   ctx.setLineDash([]);
 }
@@ -457,6 +625,7 @@ function draw() {
   ctx.fillStyle = STYLE.background;
   ctx.fillRect(0, 0, state.width, state.height);
   ctx.font = "12px system-ui, sans-serif";
+  if (state.options.showMap) drawMaps(dpr);
   if (state.options.showGrid) drawGrid(dpr);
   const agents = [...state.agents.values()];
   for (const agent of agents) drawSets(agent, dpr);
@@ -540,6 +709,8 @@ function showPanel() {
     "FRT version": `${info.frt_version} (drawn ${agent.drawnVersion})`,
     "exact set": info.frt_ready ? "ready" : "computing",
     "drawn set": agent.conservative ? "conservative (contains the exact one)" : "exact",
+    map: info.map_id || "none",
+    "cut by": agent.assumptions.length ? agent.assumptions.join(", ") : "nothing",
   };
   el("sel-facts").replaceChildren(
     ...Object.entries(facts).flatMap(([k, v]) => {
@@ -585,7 +756,8 @@ function showLegend() {
     }),
     document.createTextNode(
       " · light: C = K ⊕ R_col, mid: K, dark: slice K, dashed/≈: conservative" +
-      " · planner paths: green clear, red in C",
+      " · planner paths: green clear, red in C · grey: the map's road and lanes" +
+      " · dotted: C before the map's cut",
     ),
   );
 }
@@ -627,11 +799,14 @@ function setOptions(options) {
   el("show-tube").checked = state.options.showTube;
   el("show-slice").checked = state.options.showSlice;
   el("show-checks").checked = state.options.showChecks;
+  el("show-map").checked = state.options.showMap;
+  el("show-uncut").checked = state.options.showUncut;
   el("slice").value = String(state.options.sliceIndex + 1);
   showSliceLabel();
   showLegend();
   state.dirty = true;
   pumpFetches(); // a new slice time: every agent's slice is fetched again
+  pumpMaps();
 }
 
 el("slice").addEventListener("input", (e) => setOptions({ sliceIndex: +e.target.value - 1 }));
@@ -639,6 +814,8 @@ el("colour").addEventListener("change", (e) => setOptions({ colour: e.target.val
 el("show-tube").addEventListener("change", (e) => setOptions({ showTube: e.target.checked }));
 el("show-slice").addEventListener("change", (e) => setOptions({ showSlice: e.target.checked }));
 el("show-checks").addEventListener("change", (e) => setOptions({ showChecks: e.target.checked }));
+el("show-map").addEventListener("change", (e) => setOptions({ showMap: e.target.checked }));
+el("show-uncut").addEventListener("change", (e) => setOptions({ showUncut: e.target.checked }));
 el("fit").addEventListener("click", fitView);
 canvas.addEventListener("click", pick);
 d3.select(canvas).call(
@@ -646,6 +823,7 @@ d3.select(canvas).call(
     state.zoom = event.transform;
     if (event.sourceEvent) state.view.follow = false; // the user took over
     state.dirty = true;
+    pumpMaps();
   }),
 );
 new ResizeObserver(resize).observe(canvas);
@@ -666,11 +844,20 @@ const api = {
         contoursSlice: a.contoursSlice ?? null,
         conservative: a.conservative, cls: a.cls, colour: d3.color(agentColour(a)).formatHex(),
         state: a.info.state, beta: a.info.beta, history: a.history.length,
-        timestamp: a.info.timestamp,
+        timestamp: a.info.timestamp, mapId: a.info.map_id ?? null,
+        assumptions: a.assumptions, uncut: Boolean(a.uncutPaths),
       };
     }
     const s = state.stats;
+    const maps = {};
+    for (const m of state.maps.values()) {
+      maps[m.id] = {
+        extent: m.extent, box: m.box, features: m.features, vertices: m.vertices,
+        simplify: m.simplify, drawable: Boolean(m.paths), fetching: m.fetching, error: m.error,
+      };
+    }
     return {
+      maps, mapsDrawn: state.mapsDrawn || 0,
       connected: state.connected, error: state.error, agents, selected: state.selected,
       checks: state.checks.map((c) => ({
         points: c.trajectory.length, collision: c.collision, conservative: c.conservative,
@@ -689,6 +876,7 @@ const api = {
         frameIntervalMsP50: percentile(s.frameIntervalMs, 0.5),
         frameIntervalMsP95: percentile(s.frameIntervalMs, 0.95),
         pollMsP50: percentile(s.pollMs, 0.5), drawSamples: s.drawMs.length,
+        mapFetches: s.mapFetches, mapFetchErrors: s.mapFetchErrors,
       },
     };
   },
@@ -702,6 +890,7 @@ const api = {
     state.zoom = d3.zoomIdentity;
     d3.select(canvas).property("__zoom", d3.zoomIdentity);
     state.dirty = true;
+    pumpMaps();
   },
   fit: fitView,
   toScreen,

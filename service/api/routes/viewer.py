@@ -1,8 +1,9 @@
 """``GET /viewer``: the operator's live page, and its static files under ``/viewer/static/``.
 
 The page is plain HTML and JavaScript (``service/api/viewer/``, libraries vendored as built files),
-so nothing is built or fetched at run time. It reads the agents over ``WS /v1/stream`` and their
-contours over ``GET /v1/agents/{id}/frt``, which carry ``/v1``'s auth; the page itself follows the
+so nothing is built or fetched at run time. It reads the agents over ``WS /v1/stream``, their
+contours over ``GET /v1/agents/{id}/frt`` and the maps they name over
+``GET /v1/maps/{id}/geojson``, which carry ``/v1``'s auth; the page itself follows the
 same rule: with an ``auth_token`` set, ``Authorization: Bearer`` or (a browser's address bar sets
 no headers) ``?token=``. The static files hold no data and are served to anyone. Registered only
 when the ``viewer`` setting is on (``FRT_VIEWER=0``: every path here is a 404).

@@ -102,8 +102,9 @@ def _lines(geometry: BaseGeometry) -> dict[str, Any] | None:
 def map_features(
     road: RoadMap, margin: float, box: tuple[float, ...], lanes: bool
 ) -> list[Feature]:
-    """The map within ``box``: D, and each lane's area and centre line (``lanes``), found by the
-    map's indexes (R's tiles for D, the lanes' STRtree) and clipped to the box."""
+    """The map within ``box``: D, and each lane's area and centre line (``lanes``), clipped to
+    the box. The lanes come from the lanes' STRtree; D is clipped (a pass over its vertices) only
+    when a tile of R's index meets the box."""
     region = road.region(margin)
     rect = shapely.box(*box)
     features: list[Feature] = []

@@ -26,7 +26,15 @@ from reach.road_cut import CutSet, lane_cut
 from reach.road_map import RoadMap
 from service.api.app import create_app
 from tests.fixtures.payloads import observation, prediction
-from tests.test_maps_api import OFF_ROAD, ON_ROAD, RAW, put, settings_for, wait_ready
+from tests.test_maps_api import (
+    OFF_ROAD,
+    ON_ROAD,
+    RAW,
+    client_with_map,
+    put,
+    settings_for,
+    wait_ready,
+)
 from tests.test_road_cut import MODEL, scenario_settings
 
 BOTH = ["drivable_area", "reachable_lanes"]
@@ -64,11 +72,7 @@ EXTENT = _extent()
 
 @pytest.fixture(scope="module")
 def client(analytic_model_path: Path) -> Iterator[TestClient]:
-    app = create_app(settings_for(analytic_model_path))
-    with TestClient(app, raise_server_exceptions=False) as test_client:
-        wait_ready(test_client)
-        assert put(test_client, "austin", RAW).status_code == 200
-        yield test_client
+    yield from client_with_map(analytic_model_path)
 
 
 def body(t: float, state: dict[str, float], **extra: Any) -> dict[str, Any]:

@@ -19,10 +19,9 @@ import shapely
 from fastapi.testclient import TestClient
 from shapely.geometry import Polygon, shape
 
-from service.api.app import create_app
 from service.flows import maps as map_flows
 from tests.test_agent_maps import BOTH, observe
-from tests.test_maps_api import ON_ROAD, RAW, put, settings_for, wait_ready
+from tests.test_maps_api import ON_ROAD, RAW, client_with_map
 
 ARCHIVE = json.loads(RAW)
 #: D from the archive's drivable-area rings.
@@ -48,11 +47,7 @@ LANES = {key: _lane_polygon(lane) for key, lane in ARCHIVE["lane_segments"].item
 
 @pytest.fixture(scope="module")
 def client(analytic_model_path: Path) -> Iterator[TestClient]:
-    app = create_app(settings_for(analytic_model_path))
-    with TestClient(app, raise_server_exceptions=False) as test_client:
-        wait_ready(test_client)
-        assert put(test_client, "austin", RAW).status_code == 200
-        yield test_client
+    yield from client_with_map(analytic_model_path)
 
 
 def geojson(client: TestClient, **query: Any) -> dict:

@@ -140,6 +140,15 @@ def wait_ready(client: TestClient) -> None:
         time.sleep(0.02)
 
 
+def client_with_map(model: Path, map_id: str = "austin") -> Iterator[TestClient]:
+    """A ready in-process service with the scenario's archive registered as ``map_id``."""
+    app = create_app(settings_for(model))
+    with TestClient(app, raise_server_exceptions=False) as test_client:
+        wait_ready(test_client)
+        assert put(test_client, map_id, RAW).status_code == 200
+        yield test_client
+
+
 #: A car of the recorded scenario on the road, heading north at 10 m/s, with wide steering.
 ON_ROAD = {"x": -424.74, "y": 1417.45, "heading": 1.495, "speed": 10.0}
 #: A parked car's spot off the drivable area.

@@ -165,6 +165,17 @@ def test_config_is_frozen_and_adaptive_gamma_makes_a_new_one() -> None:
         config.gamma = 0.3  # type: ignore[misc]
 
 
+@pytest.mark.parametrize(
+    "overrides",
+    [{}, {"collision_radius": 0.75}, {"collision_radius": None, "gamma": 0.3}, {"beta_low": 0.1}],
+)
+def test_one_field_of_a_config_is_the_whole_configs(overrides: dict) -> None:
+    settings = Settings(collision_radius=2.0)
+    whole = AgentConfig.of(settings, overrides)
+    for name in ("collision_radius", "gamma", "beta_low", "epsilon"):
+        assert AgentConfig.value_of(settings, overrides, name) == getattr(whole, name)
+
+
 def test_effective_config_fields_are_the_schemas() -> None:
     from service.wire.schemas import EffectiveConfig
 

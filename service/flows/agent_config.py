@@ -38,6 +38,12 @@ class AgentConfig:
         values["assumptions"] = tuple(values["assumptions"])
         return cls(**values)
 
+    @staticmethod
+    def value_of(settings: Settings, overrides: dict[str, Any], name: str) -> Any:
+        """The one field ``name`` of :meth:`of` (a check of many agents reads only R_col)."""
+        value = overrides.get(name)
+        return getattr(settings, name) if value is None else value
+
     def with_gamma(self, gamma: float) -> AgentConfig:
         """The same configuration building its sets with ``gamma`` (adaptive gamma's)."""
         return replace(self, gamma=gamma)

@@ -323,7 +323,7 @@ def _record_for_audit(
     if inputs is not None and state.config is inputs.overrides:  # the state built first
         radius = inputs.config.collision_radius
     else:
-        radius = AgentConfig.of(services.settings, state.config).collision_radius
+        radius = AgentConfig.value_of(services.settings, state.config, "collision_radius")
     services.audit.record(
         state.agent_id,
         ServedVersion(

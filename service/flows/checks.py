@@ -499,7 +499,7 @@ def _collision_radii(
         [
             request.collision_radius
             if request.collision_radius is not None
-            else float(AgentConfig.of(settings, state.config).collision_radius)
+            else float(AgentConfig.value_of(settings, state.config, "collision_radius"))
             for state in states
         ],
         dtype=np.float64,

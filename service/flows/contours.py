@@ -132,7 +132,7 @@ async def agent_set(
         raise AgentNotFoundError(agent_id)
     radius = collision_radius
     if radius is None:
-        radius = float(AgentConfig.of(settings, state.config).collision_radius)
+        radius = float(AgentConfig.value_of(settings, state.config, "collision_radius"))
     job = services.job_for(state)
     exact = await services.exact_within(job, settings.exact_timeout_s)
     return AgentSet(state, radius, horizon, exact, lambda: services.conservative(job))

@@ -6,9 +6,11 @@ time, looping: every vehicle track is observed every 0.5 s with the constant vel
 rate predictor of ``experiments/av2.py`` (its covariance fitted on all tracks), the action taken
 over the last 0.5 s scored against it. The recording car's own track (``AV``) is the planner: at
 each tick its recorded next 3 s are checked against every agent (``time_indexed``), which the
-viewer draws. Prints the viewer's URL; Ctrl-C stops the replay and the
-server. ``--screenshot PATH`` instead runs the replay until the sets are drawn, saves the page as
-seen by headless Chromium (``scripts/headless_chromium.py``) and stops.
+viewer draws. The scenario's map archive is loaded at start-up and named by every car, so their
+sets are cut to the road and the viewer draws the map (``--no-map``: neither). Prints the viewer's
+URL; Ctrl-C stops the replay and the server. ``--screenshot PATH`` instead runs the replay until
+the sets are drawn, saves the page as seen by headless Chromium (``scripts/headless_chromium.py``)
+and stops.
 
 Data: Argoverse 2 (scenario 0a1e6f0a), © Argo AI, LLC, CC BY-NC-SA 4.0
 (https://creativecommons.org/licenses/by-nc-sa/4.0/), see ``data/av2/NOTICE.md``; the screenshot
@@ -40,6 +42,7 @@ from frt_client import FRTClient, FRTError  # noqa: E402
 
 from experiments.av2 import (  # noqa: E402
     ATTRIBUTION,
+    MAP_FILE,
     OBS_EVERY,
     SAMPLE_DT_S,
     SCENARIO_FILE,
@@ -56,6 +59,8 @@ DEFAULT_MODEL = ROOT / "models" / "frt_unicycle.onnx"
 STEP_S = OBS_EVERY * SAMPLE_DT_S  # one observation per track every 0.5 s
 PLANNER_TRACK = "AV"  # the recording car: its own future is the planner's trajectory
 PLAN_S = 3.0
+#: The scenario's map archive, loaded at start-up (``FRT_MAP``) and named by every car.
+MAP_ID = "av2-scenario"
 #: Tracks shorter than this are left out (a first observation needs 0.5 s of history).
 MIN_TRACK_S = 1.0
 
@@ -99,8 +104,11 @@ def schedule(tracks: list[Track], v_max: float) -> dict[int, list[Observation]]:
 class Replay:
     """Observes the scheduled tracks at real time, loop after loop, until stopped."""
 
-    def __init__(self, client: FRTClient, tracks: list[Track], v_max: float) -> None:
+    def __init__(
+        self, client: FRTClient, tracks: list[Track], v_max: float, map_id: str | None
+    ) -> None:
         self.client = client
+        self.map_id = map_id
         self.planner = next((t for t in tracks if t.track_id == PLANNER_TRACK), None)
         tracks = [t for t in tracks if t.track_id != PLANNER_TRACK]
         self.sigma = fit_sigma([t for t in tracks if t.observation_indices()])
@@ -123,6 +131,7 @@ class Replay:
                 state=obs.state,
                 prediction=prediction(cvtr_mean(track, obs.index), self.sigma),
                 observed_action=obs.action if obs.agent_id in previous else None,
+                map_id=self.map_id,
             )
             self.observed += 1
         except FRTError as exc:
@@ -174,9 +183,12 @@ class Replay:
 
 
 @contextlib.contextmanager
-def server(model: Path, host: str, port: int, log: Path) -> Iterator[str]:
-    """uvicorn in its own session (Ctrl-C reaches this script only, which then stops it)."""
+def server(model: Path, host: str, port: int, log: Path, map_path: Path | None) -> Iterator[str]:
+    """uvicorn in its own session (Ctrl-C reaches this script only, which then stops it), with
+    ``map_path`` loaded at start-up as map ``MAP_ID`` where given."""
     env = {**os.environ, "FRT_MODEL_PATH": str(model), "FRT_LOG_REQUESTS": "false"}
+    if map_path is not None:
+        env.update(FRT_MAP=str(map_path), FRT_MAP_ID=MAP_ID)
     with log.open("wb") as out:
         proc = subprocess.Popen(
             [
@@ -245,6 +257,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--model", type=Path, default=DEFAULT_MODEL)
     parser.add_argument("--data", type=Path, default=None, help="folder of the AV2 scenario")
     parser.add_argument("--log", type=Path, default=Path("/tmp/frt-demo-server.log"))
+    parser.add_argument(
+        "--no-map", action="store_true", help="replay without the scenario's map (sets uncut)"
+    )
     parser.add_argument("--screenshot", type=Path, default=None, help="save the page and stop")
     parser.add_argument("--screenshot-after", type=float, default=5.0, help="seconds of replay")
     parser.add_argument("--select", default=None, help="agent to select in the screenshot")
@@ -255,9 +270,11 @@ def main(argv: list[str] | None = None) -> int:
     signal.signal(signal.SIGINT, signal.default_int_handler)
     signal.signal(signal.SIGTERM, signal.default_int_handler)
 
-    tracks = load_tracks(data_dir(args.data) / SCENARIO_FILE, min_s=MIN_TRACK_S)
+    data = data_dir(args.data)
+    tracks = load_tracks(data / SCENARIO_FILE, min_s=MIN_TRACK_S)
+    map_path = None if args.no_map else (data / MAP_FILE).resolve()
     with (
-        server(args.model.resolve(), args.host, args.port, args.log) as url,
+        server(args.model.resolve(), args.host, args.port, args.log, map_path) as url,
         FRTClient(url, timeout=30.0) as client,
     ):
         try:
@@ -265,7 +282,7 @@ def main(argv: list[str] | None = None) -> int:
         except FRTError as exc:
             raise SystemExit(f"the service did not get ready ({exc}); see {args.log}") from None
         v_max = float(client.model().ranges.get("v_start", [0.0, math.inf])[1])
-        replay = Replay(client, tracks, v_max)
+        replay = Replay(client, tracks, v_max, None if map_path is None else MAP_ID)
         worker = threading.Thread(target=replay.run, name="replay", daemon=True)
         worker.start()
         print(f"viewer: {url}/viewer", flush=True)

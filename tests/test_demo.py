@@ -65,9 +65,10 @@ def test_schedule_observes_the_recorded_rows_every_half_second(tracks: list) -> 
 def test_replay_feeds_the_service_and_forgets_its_agents(
     start_server: Callable[..., LiveServer], tracks: list
 ) -> None:
-    server = start_server()
+    archive = demo.data_dir(None) / demo.MAP_FILE
+    server = start_server(map=str(archive), map_id=demo.MAP_ID)
     with FRTClient(server.url, timeout=20.0) as client:
-        replay = demo.Replay(client, tracks, v_max=20.0)
+        replay = demo.Replay(client, tracks, v_max=20.0, map_id=demo.MAP_ID)
         worker = threading.Thread(target=replay.run, daemon=True)
         worker.start()
         time.sleep(1.6)  # ticks 0-3 at real time (0, 0.5, 1.0, 1.5 s)
@@ -80,6 +81,7 @@ def test_replay_feeds_the_service_and_forgets_its_agents(
         assert f"av2-{demo.PLANNER_TRACK}" not in replay.tracks
         with httpx.Client(base_url=server.url) as http:
             first = replay.ticks[min(replay.ticks)][0].agent_id
-            assert http.get(f"/v1/agents/{first}").json()["frt_version"] >= 1
+            agent = http.get(f"/v1/agents/{first}").json()
+            assert agent["frt_version"] >= 1 and agent["map_id"] == demo.MAP_ID
             replay.forget_all()
             assert http.get(f"/v1/agents/{first}").status_code == 404

@@ -27,7 +27,13 @@ from typing import Any
 
 import numpy as np
 
-from reach.batch import Reduction, box_clearances, trajectory_surrogates_of, tube_clearances
+from reach.batch import (
+    Reduction,
+    box_clearances,
+    trajectory_surrogates_of,
+    tube_clearances,
+    tubes_of,
+)
 from reach.sets import FRTSet
 from reach.union import box_members
 from service.flows.agent_config import AgentConfig
@@ -449,7 +455,7 @@ def _fit_tubes_to_deadline(
         times = t_rel[i]
         if times is None:
             continue
-        needed = frt.tubes_present(frt.tube_indices(times))[0].tolist()
+        needed = tubes_of(frt, times)[0].tolist()
         missing = frt.missing_tubes(needed)
         if not missing:
             continue
@@ -538,6 +544,7 @@ def _respond_all(
         return []
     probed = np.stack([np.asarray(distances[i], dtype=np.float64) for i in range(len(states))])
     clearance, first = clearance_rows(points.point_distances(probed), radii)
+    colliding = (clearance < 0.0).any(axis=1).tolist()  # a point, or a trajectory's point, in C
     if points.batch:
         batches: list[list[Any]] | None = trajectory_answers(
             clearance, points, request.include_clearance
@@ -558,8 +565,7 @@ def _respond_all(
         # Built from values of the right types: no second validation of every clearance.
         results.append(
             CollisionCheckResponse.model_construct(
-                collision=index is not None
-                or (batch is not None and any(b["collision"] for b in batch)),
+                collision=colliding[i],
                 first_collision_index=index,
                 first_collision_time=None if index is None else float(times[index]),
                 clearance=rows[i],

@@ -75,7 +75,8 @@ class MapFormatError(ValueError):
 
 @dataclass(frozen=True)
 class Lane:
-    """One lane segment: its boundaries (and centre line, where given) as [n, 2] arrays."""
+    """One lane segment: its boundaries (and centre line, where given) as [n, 2] arrays; the
+    lanes it leads to by id (an archive's integers, a Lanelet2 map's strings)."""
 
     id: str
     lane_type: str
@@ -83,10 +84,10 @@ class Lane:
     left: np.ndarray
     right: np.ndarray
     centerline: np.ndarray | None
-    successors: tuple[int, ...]
-    predecessors: tuple[int, ...]
-    left_neighbor: int | None = None
-    right_neighbor: int | None = None
+    successors: tuple[int | str, ...]
+    predecessors: tuple[int | str, ...]
+    left_neighbor: int | str | None = None
+    right_neighbor: int | str | None = None
 
 
 @dataclass(frozen=True)
@@ -363,11 +364,18 @@ def cut_to(k_set: BaseGeometry, region: BaseGeometry) -> BaseGeometry:
 
 class RoadMap:
     """One map: the drivable area D (one shapely geometry), its lanes and crossings, its extent,
-    and the region R of each margin asked for (built once, kept)."""
+    and the region R of each margin asked for (built once, kept). Read from an Argoverse 2
+    archive (:meth:`from_json`) or a Lanelet2 OSM file (``reach.lanelet2_map``)."""
 
     def __init__(
-        self, areas: list[BaseGeometry], lanes: list[Lane], crossings: list[Crossing]
+        self,
+        areas: list[BaseGeometry],
+        lanes: list[Lane],
+        crossings: list[Crossing],
+        map_format: str = "argoverse2",
     ) -> None:
+        #: "argoverse2" (an archive) or "lanelet2" (``reach.lanelet2_map``).
+        self.format = map_format
         self.drivable = shapely.union_all(areas)
         self.lanes = tuple(lanes)
         self.crossings = tuple(crossings)
@@ -397,7 +405,13 @@ class RoadMap:
 
     @classmethod
     def load(cls, path: str | Path, max_points: int = MAX_POINTS) -> RoadMap:
-        return cls.from_json(Path(path).read_bytes(), max_points)
+        """The map of a file: a Lanelet2 OSM file when it ends in ``.osm``, else an archive."""
+        raw = Path(path).read_bytes()
+        if Path(path).suffix.lower() == ".osm":
+            from reach.lanelet2_map import road_map_from_osm
+
+            return road_map_from_osm(raw, max_points)
+        return cls.from_json(raw, max_points)
 
     def region(self, margin: float) -> DrivableRegion:
         """R for ``margin`` (metres, >= 0), built on first use, with the lanes' areas grown by the
@@ -442,6 +456,7 @@ class RoadMap:
     def summary(self) -> dict[str, Any]:
         """Counts, extent and drivable area, for the API."""
         return {
+            "format": self.format,
             "drivable_areas": self.areas,
             "lane_segments": len(self.lanes),
             "pedestrian_crossings": len(self.crossings),

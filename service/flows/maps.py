@@ -1,4 +1,5 @@
-"""Maps over the API (``/v1/maps/{map_id}``): register an Argoverse 2 map archive, read its
+"""Maps over the API (``/v1/maps/{map_id}``): register an Argoverse 2 map archive or a Lanelet2
+OSM file (told apart by the content type, else by the body's first non-blank byte), read its
 summary, forget it (``service.runtime.maps``; docs/maps.md), and draw it: its drivable area and
 lanes within a box as GeoJSON (``/v1/maps/{map_id}/geojson``), bounded in the box's size and the
 answer's vertices."""
@@ -26,11 +27,43 @@ def _response(services: Services, entry: MapEntry, replaced: bool | None) -> Map
     return MapResponse(**entry.summary(), margin_m=services.maps.margin, replaced=replaced)
 
 
-async def put_map(services: Services, map_id: str, raw: bytes) -> MapResponse:
-    """Parse, validate and index the archive in a worker thread (422 naming the field that is
-    wrong: nothing is registered), then register it as ``map_id``, replacing any map of that id
-    (409 when the server holds ``FRT_MAX_MAPS`` others)."""
-    road = await run_in_threadpool(services.maps.parse, raw)
+#: Content types of each map format; another (or none) is told by the body's first byte.
+JSON_TYPES = ("application/json",)
+XML_TYPES = ("application/xml", "text/xml", "application/osm+xml")
+
+
+def map_format(content_type: str | None, raw: bytes) -> str:
+    """``lanelet2`` for an XML content type, ``argoverse2`` for JSON; else ``lanelet2`` when the
+    body's first non-blank byte is ``<`` and ``argoverse2`` otherwise."""
+    media = (content_type or "").split(";", 1)[0].strip().lower()
+    if media in JSON_TYPES:
+        return "argoverse2"
+    if media in XML_TYPES:
+        return "lanelet2"
+    return "lanelet2" if raw.lstrip()[:1] == b"<" else "argoverse2"
+
+
+def origin_of(lat: float | None, lon: float | None) -> tuple[float, float] | None:
+    """The projection origin of a Lanelet2 map's lat/lon: both given or neither (422)."""
+    if (lat is None) != (lon is None):
+        name = "origin_lon" if lon is None else "origin_lat"
+        raise FieldError(name, "origin_lat and origin_lon go together", location="query")
+    return None if lat is None or lon is None else (lat, lon)
+
+
+async def put_map(
+    services: Services,
+    map_id: str,
+    raw: bytes,
+    content_type: str | None = None,
+    origin: tuple[float, float] | None = None,
+) -> MapResponse:
+    """Parse, validate and index the map (its format by :func:`map_format`) in a worker thread
+    (422 naming the field that is wrong: nothing is registered), then register it as
+    ``map_id``, replacing any map of that id (409 when the server holds ``FRT_MAX_MAPS``
+    others)."""
+    kind = map_format(content_type, raw)
+    road = await run_in_threadpool(services.maps.parse, raw, kind, origin)
     entry, replaced = services.maps.put(map_id, road, "api", len(raw))
     return _response(services, entry, replaced)
 

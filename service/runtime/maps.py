@@ -1,7 +1,8 @@
 """The maps this server holds, by id: one loaded at start-up (``FRT_MAP``, as ``FRT_MAP_ID``) and
 those registered over the API (``PUT /v1/maps/{map_id}``), and the sets cut by them.
 
-A map is an Argoverse 2 map archive (``reach.road_map``); its region R for the server's margin
+A map is an Argoverse 2 map archive (``reach.road_map``) or a Lanelet2 OSM file
+(``reach.lanelet2_map``), read into the same ``RoadMap``; its region R for the server's margin
 (``FRT_MAP_MARGIN_M``) is built when it is registered, so no request pays for it. Registering an
 id again replaces its map; sets cut by the map before are not reused (each registration has its
 own generation). Cut sets (``reach.road_cut.CutSet``) are kept per (set, map, assumptions) in a
@@ -18,6 +19,7 @@ from itertools import count
 from pathlib import Path
 from typing import Any
 
+from reach.lanelet2_map import road_map_from_osm
 from reach.lanes import DRIVABLE_AREA, REACHABLE_LANES
 from reach.road_cut import CutSet, lane_cut
 from reach.road_map import MapFormatError, RoadMap
@@ -27,6 +29,8 @@ from service.wire.errors import APIError, FieldError
 
 #: Cut sets kept (the latest used).
 CUT_CACHE_SIZE = 512
+#: The map formats read: an Argoverse 2 archive (JSON), a Lanelet2 OSM file (XML).
+FORMATS = ("argoverse2", "lanelet2")
 
 
 @dataclass(frozen=True)
@@ -62,11 +66,20 @@ class MapRegistry:
         self._generations = count(1)
         self._cuts: OrderedDict[Hashable, tuple[FRTSet, CutSet | None]] = OrderedDict()
 
-    def parse(self, raw: bytes) -> RoadMap:
-        """The map of an archive's JSON bytes, its region built (blocking: call from a thread);
+    def parse(
+        self,
+        raw: bytes,
+        map_format: str = "argoverse2",
+        origin: tuple[float, float] | None = None,
+    ) -> RoadMap:
+        """The map of an archive's JSON bytes or (``lanelet2``) an OSM file's XML bytes, lat/lon
+        projected about ``origin`` where given, its region built (blocking: call from a thread);
         422 naming the field that is wrong."""
         try:
-            road = RoadMap.from_json(raw, self.max_points)
+            if map_format == "lanelet2":
+                road = road_map_from_osm(raw, self.max_points, origin)
+            else:
+                road = RoadMap.from_json(raw, self.max_points)
         except MapFormatError as exc:
             raise FieldError(exc.field, exc.message) from None
         road.region(self.margin)
@@ -90,10 +103,12 @@ class MapRegistry:
         return entry, replaced
 
     def load_file(self, path: Path, map_id: str) -> MapEntry:
-        """Register the archive at ``path`` as ``map_id`` (at start-up; a bad file raises)."""
+        """Register the map at ``path`` as ``map_id`` (at start-up; a bad file raises): a Lanelet2
+        OSM file when its name ends in ``.osm``, else an Argoverse 2 archive."""
         raw = Path(path).read_bytes()
+        map_format = "lanelet2" if Path(path).suffix.lower() == ".osm" else "argoverse2"
         try:
-            road = self.parse(raw)
+            road = self.parse(raw, map_format)
         except FieldError as exc:
             raise ValueError(f"FRT_MAP={path}: {exc.field}: {exc.detail}") from None
         return self.put(map_id, road, "file", len(raw))[0]

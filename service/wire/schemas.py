@@ -879,6 +879,9 @@ class MapArchive(BaseModel):
 class MapResponse(Response):
     map_id: str
     source: Literal["file", "api"] = Field(description="FRT_MAP at start-up, or PUT")
+    format: Literal["argoverse2", "lanelet2"] = Field(
+        description="an Argoverse 2 map archive (JSON) or a Lanelet2 OSM file (XML)"
+    )
     size_bytes: int
     drivable_areas: int
     lane_segments: int

@@ -1,8 +1,9 @@
-"""``/v1/maps/{map_id}``: Argoverse 2 map archives whose drivable area cuts the sets."""
+"""``/v1/maps/{map_id}``: Argoverse 2 map archives and Lanelet2 OSM files whose drivable area
+cuts the sets."""
 
 from __future__ import annotations
 
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Path, Query, Request
 
@@ -22,10 +23,34 @@ router = APIRouter(prefix="/v1/maps", tags=["maps"])
 MapIdPath = Annotated[str, Path(pattern=AGENT_ID_PATTERN, description="the map's id")]
 
 
-@router.put("/{map_id}", response_model=MapResponse, openapi_extra=body_openapi(MapArchive))
-async def put_map(map_id: MapIdPath, request: Request, services: ServicesDep) -> MapResponse:
-    """Register an Argoverse 2 map archive as ``map_id`` (replacing the map of that id)."""
-    return await maps.put_map(services, map_id, await request.body())
+def _put_openapi() -> dict[str, Any]:
+    """The JSON archive's schema, and the Lanelet2 OSM file as XML beside it."""
+    extra = body_openapi(MapArchive)
+    osm = {"schema": {"type": "string", "description": "a Lanelet2 OSM file (XML)"}}
+    for media in maps.XML_TYPES:
+        extra["requestBody"]["content"][media] = osm
+    return extra
+
+
+@router.put("/{map_id}", response_model=MapResponse, openapi_extra=_put_openapi())
+async def put_map(
+    map_id: MapIdPath,
+    request: Request,
+    services: ServicesDep,
+    origin_lat: Annotated[
+        float | None,
+        Query(ge=-90.0, le=90.0, description="a Lanelet2 map's projection origin, degrees"),
+    ] = None,
+    origin_lon: Annotated[
+        float | None,
+        Query(ge=-180.0, le=180.0, description="a Lanelet2 map's projection origin, degrees"),
+    ] = None,
+) -> MapResponse:
+    """Register a map as ``map_id`` (replacing the map of that id): an Argoverse 2 archive
+    (JSON) or a Lanelet2 OSM file (XML), told apart by the content type or the first byte."""
+    origin = maps.origin_of(origin_lat, origin_lon)
+    content_type = request.headers.get("content-type")
+    return await maps.put_map(services, map_id, await request.body(), content_type, origin)
 
 
 @router.get("/{map_id}", response_model=MapResponse)

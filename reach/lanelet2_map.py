@@ -369,6 +369,8 @@ def _rings(osm: OsmFile, ways: list[int], where: str) -> list[list[int]]:
         way = osm.ways.get(way_id)
         if way is None:
             raise MapFormatError(where, f"way {way_id} not found")
+        if len(way.refs) < 2:
+            raise MapFormatError(f"way.{way_id}", f"needs at least 2 nodes, got {len(way.refs)}")
         pending.append(list(way.refs))
     rings = []
     while pending:

@@ -291,3 +291,24 @@ def test_bounds_are_oriented_by_their_sides_and_two_way_lanelets_go_both_ways() 
     assert ids == {"1", "1" + REVERSE} and two_way.lane_graph.follow == [(), ()]
     with pytest.raises(MapFormatError, match=r"relation\.1\.member\.left: way 1 not found"):
         road_map_from_osm(lanelet_map([[10, 11]], [[0, 1]]).replace(b'way id="1"', b'way id="7"'))
+
+
+def test_an_area_is_its_outer_ring_less_its_inner_one() -> None:
+    grid = "".join(f'<node id="{n}" lat="0" lon="0"><tag k="local_x" v="{x}"/>'
+                   f'<tag k="local_y" v="{y}"/></node>'
+                   for n, (x, y) in enumerate([(0, 0), (10, 0), (10, 10), (0, 10), (4, 4),
+                                               (6, 4), (6, 6), (4, 6)], start=1))  # fmt: skip
+    ways = ('<way id="1"><nd ref="1"/><nd ref="2"/><nd ref="3"/></way>'
+            '<way id="2"><nd ref="1"/><nd ref="4"/><nd ref="3"/></way>'
+            '<way id="3"><nd ref="5"/><nd ref="6"/><nd ref="7"/><nd ref="8"/><nd ref="5"/></way>')  # fmt: skip
+    area = ('<relation id="9"><member type="way" ref="1" role="outer"/>'
+            '<member type="way" ref="2" role="outer"/><member type="way" ref="3" role="inner"/>'
+            '<tag k="type" v="multipolygon"/><tag k="subtype" v="parking"/></relation>')  # fmt: skip
+    road = road_map_from_osm(f"<osm>{grid}{ways}{area}</osm>".encode())
+    assert road.drivable.area == pytest.approx(100.0 - 4.0) and road.lanes == ()
+    open_ring = area.replace('<member type="way" ref="2" role="outer"/>', "")
+    with pytest.raises(MapFormatError, match=r"relation\.9\.member\.outer: .*do not close"):
+        road_map_from_osm(f"<osm>{grid}{ways}{open_ring}</osm>".encode())
+    vegetation = area.replace('v="parking"', 'v="vegetation"')
+    with pytest.raises(MapFormatError, match=r"^body: no drivable lanelet or area"):
+        road_map_from_osm(f"<osm>{grid}{ways}{vegetation}</osm>".encode())

@@ -118,8 +118,8 @@ class Settings(BaseSettings):
     #: Time slices one contour request may ask for.
     max_slices: int = Field(16, ge=1)
 
-    # Maps (docs/maps.md): Argoverse 2 map archives whose drivable area cuts the sets.
-    #: A map archive loaded at start-up (``FRT_MAP=path``), registered as ``map_id``.
+    # Maps (docs/maps.md): Argoverse 2 archives or Lanelet2 OSM files whose road cuts the sets.
+    #: A map loaded at start-up (``FRT_MAP=path``; ``*.osm``: Lanelet2), registered as ``map_id``.
     map: Path | None = None
     map_id: str = Field("default", pattern=r"^[A-Za-z0-9_.:\-]{1,128}$")
     #: The drivable area is grown by this (metres) before it cuts a set: R = D ⊕ margin.

@@ -159,6 +159,12 @@ def tubes_of(frt: FRTSet, t_rel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return frt.tubes_present(frt.tube_indices(t_rel))
 
 
+def compile_batch_kernels() -> None:
+    """Compile (or load from numba's cache) this module's kernels before a check needs them: a
+    first call takes a few hundred milliseconds, which a check's deadline cannot hold."""
+    _tubes_present(np.zeros(1), 0.1, 3.0, 30, np.empty(1, dtype=np.int64))
+
+
 @numba.njit(cache=True)
 def _tubes_present(times, slice_dt, horizon_s, n_slices, which):
     """``FRTSet.tube_indices`` (clip to [0, horizon], ceil(t / dt - 1e-9), at most the last) and

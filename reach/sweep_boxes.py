@@ -128,3 +128,10 @@ def sweep_boxes(
     v = np.ascontiguousarray(v_start, dtype=np.float64)
     _rows(fine, grid, v, np.ascontiguousarray(bounds, dtype=np.float64), substeps, out)
     return out
+
+
+def compile_sweep_kernels() -> None:
+    """Compile (or load from numba's cache) the kernels before an observation's conservative set
+    needs them (a first call takes a few hundred milliseconds)."""
+    bounds = np.array([[-0.1, -1.0, -0.1, -1.0, 0.1, 1.0, 0.1, 1.0]])
+    sweep_boxes(np.array([5.0]), bounds, 1.0, 2, 2, (0.0, 0.0, 0.0))

@@ -17,11 +17,13 @@ from typing import Any
 
 from models.runtime import ModelCard, ValueModel
 from models.value_fields import engine_for, network_decision
+from reach.batch import compile_batch_kernels
 from reach.engine import FRTEngine
 from reach.field_stack import compile_field_kernels
 from reach.held import compile_held_kernel
 from reach.packed_rings import compile_ring_kernels
 from reach.polygons import compile_polygon_kernel
+from reach.sweep_boxes import compile_sweep_kernels
 from service.runtime.exact_worker import ExactTask, start_pool, warm_up_task
 from service.runtime.refiner import Refinement
 from service.runtime.scheduler import FRTScheduler, timed
@@ -59,6 +61,8 @@ def load_model(
         compile_field_kernels()
         compile_held_kernel()
         compile_ring_kernels()
+        compile_batch_kernels()
+        compile_sweep_kernels()
     except Exception as exc:  # a missing or broken model must not stop the service
         log.error("model not loaded", extra={"model_path": str(path), "error": str(exc)})
         return f"model not loaded: {exc}"

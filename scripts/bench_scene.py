@@ -5,9 +5,10 @@ processes as served) and drives, on its own event loop, what a scene sends a rep
 ``1 / --hz`` seconds one frame of ``--agents`` agents (``scripts/bench_frames.py``'s scene:
 cars, pedestrians and three-mode cars, ``service.flows.frames.apply_frame``), and ``--planners``
 planners each checking a 20-point, 2 s time-indexed trajectory against every agent at ``--hz``
-(``service.flows.checks.check_agents_at_once``, deadline ``--deadline-ms``). Without HTTP and
-without a load harness beside it, what is measured is the event loop's own scheduling: how long a
-check waits behind frames and their audit, from the tick it was due at to its answer.
+(``service.flows.checks.check_agents_at_once``, deadline ``--deadline-ms``). The frames' bodies
+are made before the clock starts. Without HTTP and without a load harness beside it, what is
+measured is the event loop's own scheduling: how long a check waits behind frames and their
+audit, from the tick it was due at to its answer.
 
 ``--baseline REV`` runs the same scene, in a second process started after this one, on the tree of
 git revision ``REV`` (``git archive`` into a temporary directory); both print one line each and
@@ -42,9 +43,21 @@ def quantile_ms(values: list[float], q: float) -> float:
     return 1e3 * ordered[min(len(ordered) - 1, int(q * len(ordered)))] if ordered else float("nan")
 
 
+def frame_bodies(args: argparse.Namespace) -> list[str]:
+    """Every frame's JSON body, made before the clock starts: the scene's simulation is not the
+    service's work."""
+    from scripts.bench_frames import Scene
+
+    scene, bodies = Scene(args.agents, "agent", 1), []
+    for k in range(int(args.duration * args.hz) + 1):
+        t = k / args.hz
+        agents = [{"agent_id": a, **e} for a, e in scene.step(t)]
+        bodies.append(json.dumps({"timestamp": t, "agents": agents}))
+    return bodies
+
+
 async def drive(args: argparse.Namespace) -> dict[str, Any]:
     """The scene for ``args.duration`` seconds: frame and check latencies, check verdicts."""
-    from scripts.bench_frames import Scene
     from service.flows import checks, frames
     from service.runtime.services import Services
     from service.runtime.settings import Settings
@@ -54,21 +67,20 @@ async def drive(args: argparse.Namespace) -> dict[str, Any]:
     await services.start()
     while services.engine is None:
         await asyncio.sleep(0.1)
-    scene, t0 = Scene(args.agents, "agent", 1), time.monotonic()
+    bodies = frame_bodies(args)
+    t0 = time.monotonic()
     frame_s: list[float] = []
     check_s: list[float] = []
     verdicts: dict[str, int] = {}
 
     async def framer() -> None:
-        k = 0
-        while time.monotonic() - t0 < args.duration:
+        for k, body in enumerate(bodies):
             await asyncio.sleep(max(0.0, t0 + k / args.hz - time.monotonic()))
-            t = k / args.hz
-            body = {"timestamp": t, "agents": [{"agent_id": a, **e} for a, e in scene.step(t)]}
+            if time.monotonic() - t0 >= args.duration:
+                return
             started = time.perf_counter()
-            await frames.apply_frame(services, FrameRequest.model_validate_json(json.dumps(body)))
+            await frames.apply_frame(services, FrameRequest.model_validate_json(body))
             frame_s.append(time.perf_counter() - started)
-            k += 1
 
     async def planner(lane: float) -> None:
         await asyncio.sleep(args.warm + random.uniform(0.0, 1.0 / args.hz))
@@ -94,9 +106,12 @@ async def drive(args: argparse.Namespace) -> dict[str, Any]:
                 verdicts[result.verdict] = verdicts.get(result.verdict, 0) + 1
 
     lanes = [-20.0 + 40.0 * i / max(args.planners - 1, 1) for i in range(args.planners)]
+    loop_cpu, process_cpu = time.thread_time(), time.process_time()
     await asyncio.gather(framer(), *(planner(lane) for lane in lanes))
+    elapsed = time.monotonic() - t0
+    busy = (time.thread_time() - loop_cpu) / elapsed, (time.process_time() - process_cpu) / elapsed
     await services.stop()
-    return summary(frame_s, check_s, verdicts, args.deadline_ms)
+    return {**summary(frame_s, check_s, verdicts, args.deadline_ms), "cpu_per_s": busy}
 
 
 def summary(
@@ -123,7 +138,8 @@ def line(name: str, result: dict[str, Any]) -> str:
         f"{result['checks']} check-alls from their tick p50/p90/p99 "
         f"{c['0.5']:.1f}/{c['0.9']:.1f}/{c['0.99']:.1f} ms, "
         f"{result['checks_over_deadline']} over the deadline; exact or decision-exact "
-        f"{100 * share:.2f} %"
+        f"{100 * share:.2f} %; CPU s per s: the event loop's thread "
+        f"{result['cpu_per_s'][0]:.2f}, the process {result['cpu_per_s'][1]:.2f}"
         if share is not None
         else "no answers"
     )

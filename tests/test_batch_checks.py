@@ -21,7 +21,7 @@ from shapely.affinity import rotate, translate
 from shapely.geometry import Point, box, shape
 
 from reach.footprint import MAX_DISCS, disc_centres, disc_cover, footprint_distances
-from service.api.routes.collision import as_recorded
+from service.api.recent_checks import RecentChecks
 from service.flows.check_points import CheckPoints, check_points
 from service.runtime.settings import Settings
 from service.wire.batch_body import holds_booleans, parse_batch_check
@@ -538,7 +538,11 @@ def test_recent_checks_keep_a_batchs_verdicts_without_its_entries() -> None:
     single = CollisionCheckResponse.model_construct(
         collision=False, trajectories=None, agent_id="b", **common
     )
-    kept = as_recorded([batch, single])
+    recent = RecentChecks()
+    recent.record(
+        CollisionCheckRequest(trajectory=[{"t": 0.0, "x": 0.0, "y": 0.0}]), [batch, single]
+    )
+    ((_, _, kept),) = recent._checks
     assert kept[1] is single
     assert kept[0].trajectories is None and batch.trajectories == entries
     assert kept[0].model_dump(exclude={"trajectories"}) == batch.model_dump(

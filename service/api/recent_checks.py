@@ -35,7 +35,14 @@ class RecentChecks:
     def record(
         self, request: CollisionCheckRequest, answers: Sequence[CollisionCheckResponse]
     ) -> None:
-        self._checks.append((time.monotonic(), request, answers))
+        """Keep a check for the viewer: a batch's answers without their per-trajectory entries
+        (the viewer reads each agent's verdict), which would otherwise stay alive by the thousand
+        for every recent batch, for the garbage collector to traverse."""
+        kept = [
+            a if a.trajectories is None else a.model_copy(update={"trajectories": None})
+            for a in answers
+        ]
+        self._checks.append((time.monotonic(), request, kept))
 
     def recent(self) -> list[dict[str, Any]]:
         """The checks of the last ``max_age_s``, newest first."""

@@ -44,7 +44,7 @@ async def check_agent(
     """Is the trajectory inside C = K ⊕ R_col? Answers within ``deadline_ms``, conservatively if
     the exact set is not ready."""
     answer = await checks.check_agent(services, agent_id, body, arrival_time(request.scope))
-    recent_checks.of(services).record(body, as_recorded([answer]))
+    recent_checks.of(services).record(body, [answer])
     return ModelJSONResponse(answer)
 
 
@@ -60,15 +60,5 @@ async def check_many(
 ) -> ModelJSONResponse:
     """The same check against several agents (``agent_ids``) or all of them (``null``)."""
     answer = await checks.check_agents_at_once(services, body, arrival_time(request.scope))
-    recent_checks.of(services).record(body, as_recorded(answer.results))
+    recent_checks.of(services).record(body, answer.results)
     return ModelJSONResponse(answer)
-
-
-def as_recorded(answers: list[CollisionCheckResponse]) -> list[CollisionCheckResponse]:
-    """The answers as the viewer's recent checks keep them: a batch's without its per-trajectory
-    entries (the viewer reads each agent's verdict, not the entries), which would otherwise stay
-    alive by the thousand for every recent batch, for the garbage collector to traverse."""
-    return [
-        a if a.trajectories is None else a.model_copy(update={"trajectories": None})
-        for a in answers
-    ]

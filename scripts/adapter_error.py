@@ -11,7 +11,7 @@ heading and speed there. ``frt_client.adapters.from_apollo`` turns it into contr
 state through ``reach.dynamics`` (RK4 at 0.01 s, the controls held over each step, the speed kept
 >= 0 by the stop rule). The error is the distance between the rolled and the recorded position at
 1, 2 and 3 s: median, p95 and max per agent class. The first-order differences of
-``frt_client.mixtures.trajectory_controls`` are measured the same way for comparison.
+``frt_client.paths.trajectory_controls`` are measured the same way for comparison.
 
 The error has two sources: the method (second order in ``dt``) and any disagreement between the
 recorded state and the recorded path (the sensor tracks' heading and speed are estimated from
@@ -41,7 +41,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from frt_client.adapters import from_apollo  # noqa: E402
-from frt_client.mixtures import trajectory_controls  # noqa: E402
+from frt_client.paths import trajectory_controls  # noqa: E402
 
 from experiments.sensor_tracks import SENSOR_ATTRIBUTION, ClassedTrack, load_all  # noqa: E402
 from reach.agent_classes import AGENT_CLASSES  # noqa: E402
@@ -209,7 +209,7 @@ def main() -> None:
     result = {
         "command": ".venv/bin/python scripts/adapter_error.py",
         "method": "frt_client.adapters.from_apollo (path_controls: central differences); "
-        "frt_client.mixtures.trajectory_controls for comparison",
+        "frt_client.paths.trajectory_controls for comparison",
         "windows_every_s": WINDOW_EVERY * SAMPLE_DT_S,
         "horizon_s": HORIZON_SAMPLES * SAMPLE_DT_S,
         "rk4_dt_s": RK4_DT_S,

@@ -37,11 +37,11 @@ from frt_client.adapters import (
     from_apollo,
     from_autoware,
     grown_covs,
-    path_controls,
     resample,
     shape_radius,
 )
-from frt_client.mixtures import from_trajectories, trajectory_controls
+from frt_client.mixtures import from_trajectories
+from frt_client.paths import path_controls, trajectory_controls
 
 from reach.agent_classes import AGENT_CLASSES
 from reach.dynamics import unicycle_derivative

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 from frt_client import FRTClient, ValidationError, from_mixture, from_trajectories
-from frt_client.mixtures import trajectory_controls
+from frt_client.paths import trajectory_controls
 
 from tests.conftest import LiveServer
 

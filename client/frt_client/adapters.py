@@ -30,17 +30,10 @@ Paths with zero probability are dropped; the rest are weighted by their probabil
 (normalised) and the 32 most probable kept. Modes shorter than the longest repeat their last step
 (the service holds a prediction's last step to the horizon anyway).
 
-**The controls** (:func:`path_controls`): the extended unicycle (x' = v cos θ, y' = v sin θ,
-θ' = u1, v' = u2) with controls held over each step moves its heading and speed linearly between
-the points, so the controls are the changes of heading and speed between consecutive points over
-``dt``. The state at point 0 is the observation's; at an inner point k it is the velocity
-``(p[k+1] - p[k-1]) / (2 dt)`` (central differences: the mean of the two segments' velocities),
-at the last point the last segment's velocity; a point whose velocity moves less than
-:data:`STOP_STEP_M` per step keeps the heading before it. Rolled through the dynamics, these
-controls meet a smooth path's points to second order in ``dt`` (halving ``dt`` quarters the
-error), where the first-order differences of :func:`frt_client.mixtures.trajectory_controls`
-(which take each segment's velocity as the state at its end) lag half a step behind the path;
-docs/client.md gives both methods' error on recorded tracks and the command that measures it.
+**The controls**: :func:`frt_client.paths.path_controls` (central differences: the state at an
+inner point the mean of its two segments' velocities), which meets a smooth path's points to
+second order in ``dt``; docs/client.md gives its error on recorded tracks beside the first-order
+differences of :func:`frt_client.paths.trajectory_controls` and the command that measures both.
 
 **The covariances.** Autoware's paths carry none: step k gets the rule of
 :func:`frt_client.mixtures.from_trajectories` (``diag((sigma_1 s_k)^2, (sigma_2 s_k)^2)``,
@@ -68,7 +61,6 @@ message (``trajectory.1.trajectory_point.3.relative_time``).
 
 from __future__ import annotations
 
-import cmath
 import dataclasses
 import itertools
 import math
@@ -79,13 +71,12 @@ from typing import Any
 from frt_client.errors import ValidationError
 from frt_client.inputs import plain
 from frt_client.mixtures import MAX_MODES, from_mixture
+from frt_client.paths import path_controls, path_states, wrap
 
 #: The service's horizon T (s): later points of a path are not used.
 HORIZON_S = 3.0
 #: Below this speed (m/s) the velocity's direction is noise: the object's yaw is its heading.
 HEADING_MIN_SPEED = 0.5
-#: A point whose velocity moves less than this (m) per step keeps the heading before it.
-STOP_STEP_M = 1e-3
 #: The speed (m/s) below which a heading-rate error is taken to move a point as at this speed.
 LATERAL_MIN_SPEED = 0.5
 #: Default standard deviations (rad/s, m/s²) of the first step, and their growth per step, for
@@ -397,59 +388,14 @@ def _seconds(value: Any, where: str) -> float:
     return _number(value, where)
 
 
-def _wrap(angle: float) -> float:
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
-
-
 def _state(x: float, y: float, yaw: float, vx: float, vy: float) -> dict[str, float]:
     """The unicycle state from a position, a yaw and a world-frame velocity (see the module)."""
     speed = math.hypot(vx, vy)
     heading = math.atan2(vy, vx) if speed >= HEADING_MIN_SPEED else yaw
-    return {"x": x, "y": y, "heading": _wrap(heading), "speed": speed}
+    return {"x": x, "y": y, "heading": wrap(heading), "speed": speed}
 
 
 # ------------------------------------------------------------------ the method
-
-
-def _knots(
-    positions: Sequence[Sequence[float]], dt: float, heading: float, speed: float
-) -> tuple[list[float], list[float]]:
-    """The heading (continuous, rad) and speed (m/s) of the path at each of its points."""
-    segments = [
-        complex(x1 - x0, y1 - y0) / dt for (x0, y0), (x1, y1) in itertools.pairwise(positions)
-    ]
-    headings, speeds = [float(heading)], [float(speed)]
-    last = len(positions) - 1
-    for k in range(1, last + 1):
-        velocity = 0.5 * (segments[k - 1] + segments[k]) if k < last else segments[k - 1]
-        before = headings[-1]
-        direction = cmath.phase(velocity) if abs(velocity) * dt >= STOP_STEP_M else before
-        headings.append(before + _wrap(direction - before))
-        speeds.append(abs(velocity))
-    return headings, speeds
-
-
-def path_controls(
-    positions: Sequence[Sequence[float]], dt: float, heading: float, speed: float
-) -> list[list[float]]:
-    """Controls (steering rate, acceleration) that drive the unicycle along a path.
-
-    ``positions`` are the path's points ``(x, y)`` at ``0, dt, 2 dt, ...``, the first the human's
-    position, whose heading (rad) and speed (m/s) are ``heading`` and ``speed``. Control k is the
-    change of heading (wrapped) and of speed from point k to point k + 1 over ``dt``, with the
-    state at each later point from central differences (see the module). ``len(positions) - 1``
-    steps.
-    """
-    points = plain(positions)
-    if not isinstance(points, list) or len(points) < 2:
-        raise ValidationError("a path needs at least two points", field="positions")
-    if not (math.isfinite(dt) and dt > 0):
-        raise ValidationError(f"dt must be a positive number, got {dt!r}", field="dt")
-    headings, speeds = _knots(points, dt, heading, speed)
-    return [
-        [(headings[k + 1] - headings[k]) / dt, (speeds[k + 1] - speeds[k]) / dt]
-        for k in range(len(points) - 1)
-    ]
 
 
 def _tangents(times: Sequence[float], points: Sequence[complex]) -> list[complex]:
@@ -652,7 +598,7 @@ def _mode(
     if covs is None:
         return means, grown_covs(len(means), options.sigma, options.growth)
     grid = [k * dt for k in range(len(points))]
-    headings, speeds = _knots(points, dt, start["heading"], start["speed"])
+    headings, speeds = path_states(points, dt, start["heading"], start["speed"])
     position_covs = _interpolate_covs(times, covs, grid)
     return means, gaussian_controls_cov(grid, position_covs, headings, speeds, options.floor)
 

@@ -3,8 +3,8 @@
 - :func:`from_mixture`: a Trajectron++-style Gaussian mixture over the controls (per mode a
   log-weight, and per step a mean and covariance of (steering rate, acceleration)).
 - :func:`from_trajectories`: weighted predicted paths (Apollo's and Autoware's prediction
-  messages: per path a probability and positions at a fixed step), turned into controls by finite
-  differences with the covariance rule stated there.
+  messages: per path a probability and positions at a fixed step), turned into controls by
+  central differences (``frt_client.paths``) with the covariance rule stated there.
 
 Both return ``{"dt": dt, "modes": [{"weight", "mean", "cov"}, ...]}``, which
 ``observe(prediction=...)`` takes. Pure Python: numpy arrays are accepted (through ``.tolist()``)
@@ -13,13 +13,12 @@ but not needed. The service normalises the weights; it accepts at most 32 modes.
 
 from __future__ import annotations
 
-import itertools
 import math
-from collections.abc import Sequence
 from typing import Any
 
 from frt_client.errors import ValidationError
 from frt_client.inputs import plain
+from frt_client.paths import path_controls
 
 #: The most modes the service accepts in one prediction.
 MAX_MODES = 32
@@ -60,36 +59,6 @@ def from_mixture(
     }
 
 
-def _wrap(angle: float) -> float:
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
-
-
-def trajectory_controls(
-    positions: Sequence[Sequence[float]], dt: float, heading: float, speed: float
-) -> list[list[float]]:
-    """Controls (steering rate, acceleration) along one path, by first-order finite differences.
-
-    ``positions`` are the path's points ``(x, y)`` at ``0, dt, 2 dt, ...`` from the current
-    position. Segment k (from point k to point k+1) has heading ``atan2(dy, dx)`` and speed
-    ``|dp| / dt``; control k takes the human from the state before it (the current ``heading``
-    and ``speed`` for k = 0, else segment k-1) to segment k in ``dt``: ``u1 = wrap(dtheta) / dt``,
-    ``u2 = dv / dt``. A segment shorter than 1 mm keeps the heading before it (a stopped human
-    has no direction). One control per segment: ``len(positions) - 1`` steps.
-    """
-    if len(positions) < 2:
-        raise ValidationError("a path needs at least two points", field="positions")
-    controls = []
-    theta, v = float(heading), float(speed)
-    for (x0, y0), (x1, y1) in itertools.pairwise(positions):
-        dx, dy = x1 - x0, y1 - y0
-        length = math.hypot(dx, dy)
-        seg_theta = math.atan2(dy, dx) if length >= 1e-3 else theta
-        seg_v = length / dt
-        controls.append([_wrap(seg_theta - theta) / dt, (seg_v - v) / dt])
-        theta, v = seg_theta, seg_v
-    return controls
-
-
 def from_trajectories(
     paths: Any,
     probabilities: Any,
@@ -113,7 +82,8 @@ def from_trajectories(
         growth: how much the standard deviations grow per step.
         max_modes: keep the most probable this many paths (at most 32).
 
-    The means are :func:`trajectory_controls`. The covariance rule: paths carry no covariance,
+    The means are :func:`frt_client.paths.path_controls` (central differences). The covariance
+    rule: paths carry no covariance,
     so step k gets ``diag((sigma_1 s_k)^2, (sigma_2 s_k)^2)`` with ``s_k = 1 + growth * k``:
     independent controls whose spread grows linearly along the path, as a predictor's does with
     the lead time.
@@ -128,7 +98,7 @@ def from_trajectories(
     total = sum(probs[m] for m in keep)
     modes = []
     for m in keep:
-        mean = trajectory_controls(points[m], dt, heading, speed)
+        mean = path_controls(points[m], dt, heading, speed)
         cov = []
         for k in range(len(mean)):
             scale = 1.0 + growth * k

@@ -373,3 +373,53 @@ def test_agents_refused_by_the_flow_are_answered_in_place_and_keep_their_state(
     wide.post("/v1/agents/rj-ok-alone/observations", json={"timestamp": 1.0, **first[0]})
     one = wide.post("/v1/agents/rj-ok-alone/observations", json={"timestamp": 2.0, **bodies[0]})
     _same_but_the_id(out["results"][0], one.json())
+
+
+def test_a_check_arriving_during_a_frame_is_answered_between_its_stages(
+    wide: TestClient, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A check that arrives while a frame builds its agents' next states is answered before the
+    frame's next group of agents (``STATES_PER_TURN``), not after the whole frame."""
+    from service.flows import agents, checks
+    from service.wire.schemas import MultiCollisionCheckRequest, ObservationRequest
+
+    services = wide.app.state.services
+    n = 2 * agents.STATES_PER_TURN + 1
+    observations = [
+        (f"turns-{i}", ObservationRequest.model_validate(observation(20.0, x=4.0 * i)))
+        for i in range(n)
+    ]
+    check = MultiCollisionCheckRequest.model_validate(
+        {"trajectory": [{"t": 20.5, "x": 0.0, "y": 30.0}], "mode": "time_indexed"}
+    )
+    order: list[str] = []
+    arriving: list[asyncio.Task] = []
+    real_next_states = agents.next_states
+
+    async def a_planner() -> None:
+        await checks.check_agents_at_once(services, check, time.perf_counter())
+        order.append("check")
+
+    def next_states_as_a_check_arrives(priors, inputs, *args):  # type: ignore[no-untyped-def]
+        if not arriving:
+            arriving.append(asyncio.get_running_loop().create_task(a_planner()))
+        order.append(f"states of {len(inputs)}")
+        return real_next_states(priors, inputs, *args)
+
+    async def frame_and_check() -> list:
+        applied = await agents.observe_many(services, observations)
+        order.append("frame")
+        await arriving[0]
+        return applied
+
+    monkeypatch.setattr(agents, "next_states", next_states_as_a_check_arrives)
+    applied = asyncio.run(frame_and_check())
+    assert not any(isinstance(a, Exception) for a in applied)
+    per_turn = agents.STATES_PER_TURN
+    assert order == [
+        f"states of {per_turn}",
+        "check",
+        f"states of {per_turn}",
+        "states of 1",
+        "frame",
+    ]

@@ -63,6 +63,22 @@ def test_a_stream_of_checks_holds_an_observation_back_for_max_hold_only() -> Non
     assert held >= 0.02 and in_flight == 1  # it went while the check was still in flight
 
 
+def test_the_turns_of_one_frame_hold_it_back_for_max_hold_together() -> None:
+    """Each later turn is given what is left of ``max_hold_s``: once it is spent, a turn yields
+    and goes on while the check is still in flight."""
+    priority = ChecksFirst(max_hold_s=0.02)
+
+    async def main() -> list[float]:
+        with priority.check():
+            held = [await priority.observation_turn()]
+            for _ in range(3):
+                held.append(await priority.observation_turn(priority.max_hold_s - sum(held)))
+            return held
+
+    held = asyncio.run(main())
+    assert held[0] >= 0.02 and held[1:] == [0.0, 0.0, 0.0]
+
+
 def test_a_check_that_fails_still_lets_observations_go() -> None:
     priority = ChecksFirst(max_hold_s=10.0)
 

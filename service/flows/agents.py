@@ -128,8 +128,10 @@ async def observe_many(
     checks waiting on the event loop go first. Per observation the stored result, or the error
     that refused it (nothing of that agent changed)."""
     # Collision checks (deadlines) before this numerical work: requests already waiting on the
-    # event loop go first, and checks in flight finish first.
-    await services.priority.observation_turn()
+    # event loop go first, and checks in flight finish first; the frame's turns together hold
+    # it back for the priority's max_hold_s at most.
+    priority = services.priority
+    held = await priority.observation_turn()
     settings = services.settings
     engine = services.require_engine()
     results: list[Applied | APIError | None] = [None] * len(observations)
@@ -143,7 +145,8 @@ async def observe_many(
     ]
     built: list[tuple[AgentState, Belief] | APIError] = []
     for start in range(0, len(entries), STATES_PER_TURN):
-        await services.priority.observation_turn()  # between stages, checks that arrived go first
+        # Between stages, the checks that arrived go first.
+        held += await priority.observation_turn(priority.max_hold_s - held)
         part = entries[start : start + STATES_PER_TURN]
         inputs = [e.inputs for e in part]  # each set by _prepared
         built += next_states([e.previous for e in part], inputs, settings, engine)  # type: ignore[arg-type]
@@ -162,7 +165,7 @@ async def observe_many(
     # rebuilt by the store's update gets its own below).
     jobs = {id(r[0]): services.job_for(r[0]) for r in built if not isinstance(r, APIError)}
     building = start_conservative(services, list(jobs.values()))  # type: ignore[index]
-    await services.priority.observation_turn()
+    await priority.observation_turn(priority.max_hold_s - held)
     stored = await services.store.update_many(updates)
     _submitted(services, stored_entries, stored, results, (building, jobs))
     return results  # type: ignore[return-value]

@@ -47,16 +47,19 @@ class ChecksFirst:
                     if not waiter.done():
                         waiter.set_result(None)
 
-    async def observation_turn(self) -> float:
+    async def observation_turn(self, hold_s: float | None = None) -> float:
         """Yield to requests already waiting on the loop, then wait while checks are in flight
-        (``max_hold_s`` at most). Returns the seconds held back."""
+        (``hold_s`` at most, default ``max_hold_s``; a frame's later turns pass what is left of
+        it, so that its turns together hold it back that long at most). Returns the seconds held
+        back."""
         await asyncio.sleep(0)
-        if self._in_flight == 0:
+        hold = self.max_hold_s if hold_s is None else hold_s
+        if self._in_flight == 0 or hold <= 0:
             return 0.0
         loop = asyncio.get_running_loop()
         start = loop.time()
         while self._in_flight:
-            left = start + self.max_hold_s - loop.time()
+            left = start + hold - loop.time()
             if left <= 0:
                 break
             waiter = loop.create_future()

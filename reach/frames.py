@@ -1,7 +1,8 @@
 """The human frame: origin at the human's observed position, x along its heading.
 
 Every set is built in the human frame (the dynamics start at (0, 0, heading 0)); answers are in the
-world frame: p_world = R(heading) p_human + (x, y), and back with R(-heading).
+world frame: p_world = R(heading) p_human + (x, y), and back with R(-heading). Boxes are
+(x0, y0, x1, y1) in whichever frame they are given.
 """
 
 from __future__ import annotations
@@ -55,3 +56,13 @@ def to_human_frame(xy_world: np.ndarray, pose: Pose) -> np.ndarray:
 def to_world_frame(geometry: BaseGeometry, pose: Pose) -> BaseGeometry:
     c, s = math.cos(pose.heading), math.sin(pose.heading)
     return affinity.affine_transform(geometry, [c, -s, s, c, pose.x, pose.y])
+
+
+def covers_box(outer: tuple[float, ...], inner: tuple[float, ...]) -> bool:
+    """Whether the box ``outer`` holds the box ``inner`` (both x0, y0, x1, y1)."""
+    return (
+        outer[0] <= inner[0]
+        and outer[1] <= inner[1]
+        and outer[2] >= inner[2]
+        and outer[3] >= inner[3]
+    )

@@ -44,6 +44,8 @@ import numpy as np
 import shapely
 from shapely.geometry.base import BaseGeometry
 
+from reach.frames import covers_box
+
 if TYPE_CHECKING:
     from reach.road_map import DrivableRegion, Lane
 
@@ -97,16 +99,6 @@ def direction_at(line: np.ndarray, x: float, y: float) -> float:
     return math.atan2(d[k, 1], d[k, 0])
 
 
-def _holds(outer: tuple[float, ...], inner: tuple[float, ...]) -> bool:
-    """Whether the box ``outer`` holds the box ``inner`` (both x0, y0, x1, y1)."""
-    return (
-        outer[0] <= inner[0]
-        and outer[1] <= inner[1]
-        and outer[2] >= inner[2]
-        and outer[3] >= inner[3]
-    )
-
-
 def _angle(a: float, b: float) -> float:
     """|a - b| wrapped into [0, π]."""
     return abs((a - b + math.pi) % (2.0 * math.pi) - math.pi)
@@ -137,13 +129,13 @@ class LaneRegion:
     def near(self, bounds: tuple[float, ...]) -> BaseGeometry:
         """The region within (at least) the box ``bounds`` (x0, y0, x1, y1): the grown lanes
         where the box is within the extent, else with the plane outside it."""
-        if _holds(self.extent, bounds):
+        if covers_box(self.extent, bounds):
             return self.grown
         if self._union is None:
             union = shapely.union_all([self.grown, *self._strips])
             shapely.prepare(union)
             self._union = union
-        if _holds(self.indexed, bounds):
+        if covers_box(self.indexed, bounds):
             return self._union
         box = shapely.box(*bounds)
         return shapely.union(self._union, box.difference(shapely.box(*self.indexed)))

@@ -37,8 +37,9 @@ import numpy as np
 import shapely
 from shapely.geometry.base import BaseGeometry, BaseMultipartGeometry
 
+from reach.frames import covers_box
 from reach.lanes import DRIVABLE_AREA, HEADING_TOLERANCE, VEHICLE_LANE_TYPES, LaneRegion
-from reach.road_map import DrivableRegion, RoadMap, covers_box, cut_to, region_in_frame, world_box
+from reach.road_map import DrivableRegion, RoadMap, cut_to, region_in_frame, world_box
 from reach.sets import BoxTubeSet, FRTSet
 
 __all__ = ["DRIVABLE_AREA", "CutSet", "connected_to", "extent", "lane_cut"]

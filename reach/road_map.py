@@ -45,7 +45,7 @@ import shapely
 from shapely import affinity
 from shapely.geometry.base import BaseGeometry
 
-from reach.frames import Pose
+from reach.frames import Pose, covers_box
 from reach.lanes import DRIVABLE_AREA, HEADING_TOLERANCE, VEHICLE_LANE_TYPES, LaneGraph, LaneRegion
 
 #: The collections of an archive, in the order they are read.
@@ -319,16 +319,6 @@ class DrivableRegion:
         e0, f0, e1, f1 = self.extent
         outside = (x < e0) | (x > e1) | (y < f0) | (y > f1)
         return outside | shapely.intersects_xy(self.grown, x, y)
-
-
-def covers_box(outer: tuple[float, ...], inner: tuple[float, ...]) -> bool:
-    """Whether the box ``outer`` holds the box ``inner`` (both x0, y0, x1, y1)."""
-    return (
-        outer[0] <= inner[0]
-        and outer[1] <= inner[1]
-        and outer[2] >= inner[2]
-        and outer[3] >= inner[3]
-    )
 
 
 def world_box(pose: Pose, bounds: tuple[float, ...]) -> tuple[float, float, float, float]:

@@ -166,14 +166,20 @@ def test_config_is_frozen_and_adaptive_gamma_makes_a_new_one() -> None:
 
 
 @pytest.mark.parametrize(
-    "overrides",
-    [{}, {"collision_radius": 0.75}, {"collision_radius": None, "gamma": 0.3}, {"beta_low": 0.1}],
+    ("overrides", "radius", "gamma"),
+    [
+        ({}, 2.0, 0.4),
+        ({"collision_radius": 0.75}, 0.75, 0.4),
+        ({"collision_radius": None, "gamma": 0.3}, 2.0, 0.3),
+        ({"beta_low": 0.1, "unknown": 1}, 2.0, 0.4),
+    ],
 )
-def test_one_field_of_a_config_is_the_whole_configs(overrides: dict) -> None:
-    settings = Settings(collision_radius=2.0)
+def test_an_override_wins_unless_it_is_null(overrides: dict, radius: float, gamma: float) -> None:
+    settings = Settings(collision_radius=2.0, gamma=0.4)
     whole = AgentConfig.of(settings, overrides)
-    for name in ("collision_radius", "gamma", "beta_low", "epsilon"):
-        assert AgentConfig.value_of(settings, overrides, name) == getattr(whole, name)
+    assert (whole.collision_radius, whole.gamma) == (radius, gamma)
+    assert AgentConfig.value_of(settings, overrides, "collision_radius") == radius
+    assert whole.beta_low == overrides.get("beta_low", settings.beta_low)
 
 
 def test_effective_config_fields_are_the_schemas() -> None:

@@ -33,14 +33,14 @@ class AgentConfig:
     @classmethod
     def of(cls, settings: Settings, overrides: dict[str, Any]) -> AgentConfig:
         """``settings`` overlaid with the non-null ``overrides`` of these fields."""
-        values = {name: getattr(settings, name) for name in CONFIG_KEYS}
-        values.update({k: v for k, v in overrides.items() if k in CONFIG_KEYS and v is not None})
+        values = {name: cls.value_of(settings, overrides, name) for name in CONFIG_KEYS}
         values["assumptions"] = tuple(values["assumptions"])
         return cls(**values)
 
     @staticmethod
     def value_of(settings: Settings, overrides: dict[str, Any], name: str) -> Any:
-        """The one field ``name`` of :meth:`of` (a check of many agents reads only R_col)."""
+        """The field ``name``: the agent's override unless it is null, else the setting (a check
+        of many agents reads only R_col)."""
         value = overrides.get(name)
         return getattr(settings, name) if value is None else value
 

@@ -338,8 +338,8 @@ class RollingCoverage:
 
     def add(self, scored: Sequence[Scored]) -> tuple[float, float]:
         """Add positions; the coverage of K and of C over the window after them."""
-        in_k = [s.distance_to_k <= 0.0 for s in scored]
-        in_c = [s.distance_to_k <= s.collision_radius for s in scored]
+        in_k = [s.in_k for s in scored]
+        in_c = [s.in_c for s in scored]
         with self._lock:
             self._k.extend(in_k)  # the oldest leave as these come
             self._c.extend(in_c)

@@ -71,20 +71,30 @@ def on_the_road(
     (``key``, whether ``frt`` is conservative) while ``frt`` is the set answered from."""
     if entry is None:
         return frt, []
-    held = []
-    for name in CLASS_ASSUMPTIONS[DEFAULT_CLASS]:
-        holds = _tested(services, entry, name, pose) if name in configured else None
-        if holds is False:
-            services.metrics.assumption_violations.labels(name, DEFAULT_CLASS).inc()
-        elif holds:
-            held.append(name)
+    wanted = [a for a in CLASS_ASSUMPTIONS[DEFAULT_CLASS] if a in configured]
+    held, broken = _tested(services, entry, wanted, pose)
+    for name in broken:
+        services.metrics.assumption_violations.labels(name, DEFAULT_CLASS).inc()
     if not held:
         services.metrics.road_cuts.labels("off_road").inc()
         return frt, []
     return agent_cut(services, entry, key, frt, held)
 
 
-def _tested(services: Services, entry: MapEntry, name: str, pose: HumanState) -> bool | None:
+def _tested(
+    services: Services, entry: MapEntry, names: Sequence[str], pose: HumanState
+) -> tuple[list[str], list[str]]:
+    """Of the assumptions ``names``, those the pose keeps and those it breaks, in order (one not
+    tested, the lanes outside the map's extent, is neither)."""
+    held, broken = [], []
+    for name in names:
+        holds = _holds(services, entry, name, pose)
+        if holds is not None:
+            (held if holds else broken).append(name)
+    return held, broken
+
+
+def _holds(services: Services, entry: MapEntry, name: str, pose: HumanState) -> bool | None:
     """Whether the pose keeps assumption ``name``; None where it is not tested (the lanes
     outside the map's extent)."""
     road, margin = entry.road, services.maps.margin
@@ -123,14 +133,10 @@ def observed_on_map(
         for a in CLASS_ASSUMPTIONS.get(str(overrides.get("agent_class", "car")), ())
         if a in configured
     ]
-    broken, active = [], []
-    for name in wanted if entry is not None else ():
-        holds = _tested(services, entry, name, pose)  # type: ignore[arg-type]
-        if holds is False:
-            broken.append(name)
-            relaxed[name] = t + services.settings.assumption_relax_s
-        elif holds and name not in relaxed:
-            active.append(name)
+    held, broken = _tested(services, entry, wanted, pose) if entry is not None else ([], [])
+    for name in broken:
+        relaxed[name] = t + services.settings.assumption_relax_s
+    active = [name for name in held if name not in relaxed]
     out = {**overrides, MAP_KEY: named, ACTIVE_KEY: active}
     if relaxed:
         out[RELAXED_KEY] = relaxed

@@ -1,10 +1,10 @@
 """Sets that know the road (docs/maps.md): the map assumptions a state is answered under, and its
 set cut by them.
 
-The stateless endpoint (:func:`on_the_road`): a state that names a map is cut to the drivable
-area while it is on it; a state off R = D ⊕ ``FRT_MAP_MARGIN_M`` (within the map's extent) breaks
-the assumption already: its set is served uncut, with no assumption listed, and the breach is
-counted (``frt_assumption_violations_total{assumption="drivable_area"}``).
+The stateless endpoint (:func:`stateless_cut`): a car's state that names a map is cut by the
+assumptions asked for that its pose keeps, tested as an observation's are (below); one it breaks
+is counted (``frt_assumption_violations_total``), and a state that keeps none is served uncut,
+with no assumption listed.
 
 Agents (:func:`observed_on_map`, :func:`agent_cut`): an agent that names a map keeps it
 (``map_id`` in its stored overrides) and is answered under the assumptions its configuration
@@ -57,7 +57,7 @@ def map_entry(services: Services, map_id: str | None, field: str = "map_id") -> 
     return None if map_id is None else services.maps.require(map_id, field)
 
 
-def on_the_road(
+def stateless_cut(
     services: Services,
     entry: MapEntry | None,
     key: Hashable,

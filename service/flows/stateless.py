@@ -21,7 +21,7 @@ from service.flows.agent_config import AgentConfig
 from service.flows.checks import answer, wait_budget_s
 from service.flows.contours import build
 from service.flows.next_state import check_ranges, class_limits, mode_bounds, observed_prediction
-from service.flows.road import map_entry, on_the_road
+from service.flows.road import map_entry, stateless_cut
 from service.runtime.jobs import FRTJob
 from service.runtime.services import Services
 from service.wire.errors import FieldError
@@ -92,7 +92,7 @@ async def stateless_frt(services: Services, request: FRTRequest, arrival: float)
 
     def compute() -> FRTResponse:
         frt = exact if exact is not None else services.conservative(job)
-        frt, assumptions = on_the_road(services, road, job.key, frt, state, configured)
+        frt, assumptions = stateless_cut(services, road, job.key, frt, state, configured)
         return FRTResponse(
             control_bounds=ControlBoundsOut.from_list(bounds.tolist()),
             beta=request.beta if request.control_bounds is None else None,

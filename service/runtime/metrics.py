@@ -161,8 +161,8 @@ class Metrics:
     def _define_maps(self, r: CollectorRegistry) -> None:
         self.road_cuts = Counter(
             "frt_road_cuts",
-            "Answers for a state that named a map (docs/maps.md), by outcome: cut (the set cut to "
-            "the drivable area) or off_road (the state is off it: answered uncut)",
+            "Answers for a state that named a map (docs/maps.md), by outcome: cut (the set cut by "
+            "its map assumptions) or off_road (the stateless state keeps none: answered uncut)",
             ["outcome"],
             registry=r,
         )

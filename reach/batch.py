@@ -163,6 +163,7 @@ def compile_batch_kernels() -> None:
     """Compile (or load from numba's cache) this module's kernels before a check needs them: a
     first call takes a few hundred milliseconds, which a check's deadline cannot hold."""
     _tubes_present(np.zeros(1), 0.1, 3.0, 30, np.empty(1, dtype=np.int64))
+    trajectory_reductions(np.zeros(2), np.zeros(1, dtype=np.intp), 2, 0.5, 1.0, 1e9)
 
 
 @numba.njit(cache=True)
@@ -215,3 +216,45 @@ def tube_clearances(
     tubes[:] = tubes_list
     signed = signed_distances(tubes, np.array(which, dtype=np.intp), np.stack([x, y], axis=1))
     return list(signed.reshape(len(sets), n))
+
+
+def trajectory_reductions(
+    probed: np.ndarray,
+    starts: np.ndarray,
+    group: int,
+    offset: float,
+    radius: float,
+    limit: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per trajectory (points ``starts[k]:starts[k + 1]``), the least clearance and the row of the
+    first point whose clearance is below zero (the number of points if none), the clearances
+    being those of the probe distances ``probed``: a point's is the least of its ``group``
+    probes' less ``offset`` (numpy's minimum: NaN if one is), less ``radius``, NaN counted as
+    ``-limit`` and clipped to +-``limit``; the same floating-point operations in the same order
+    as ``CheckPoints.point_distances`` and ``service.flows.checks.clearance_rows``."""
+    points = len(probed) // group
+    begins = np.asarray(starts, dtype=np.int64)
+    least = np.empty(len(begins), dtype=np.float64)
+    first = np.empty(len(begins), dtype=np.int64)
+    _reduce(probed, begins, points, group, offset, radius, limit, least, first)
+    return least, first
+
+
+@numba.njit(cache=True)
+def _reduce(probed, begins, points, group, offset, radius, limit, least, first):
+    for k in range(len(begins)):
+        end = begins[k + 1] if k + 1 < len(begins) else points
+        smallest = np.inf
+        first[k] = points
+        for p in range(begins[k], end):
+            d = probed[p * group]
+            for i in range(p * group + 1, (p + 1) * group):
+                if d == d and (probed[i] < d or probed[i] != probed[i]):
+                    d = probed[i]
+            c = (d - offset) - radius
+            c = -limit if c != c else min(max(c, -limit), limit)
+            if c < smallest:
+                smallest = c
+            if c < 0.0 and first[k] == points:
+                first[k] = p
+        least[k] = smallest

@@ -10,7 +10,8 @@ import pytest
 import reach.batch
 from models.runtime import ValueModel
 from models.value_fields import engine_for
-from reach.batch import box_clearances, tube_clearances
+from reach.batch import box_clearances, trajectory_reductions, tube_clearances
+from reach.footprint import disc_cover, footprint_distances
 from reach.frames import Pose
 
 BOUNDS = np.array([-0.3, -2.0, -0.2, -1.0, 0.3, 1.5, 0.25, 2.0])
@@ -95,3 +96,30 @@ def test_box_clearances_are_signed_distances_to_the_union_of_boxes(
         np.testing.assert_allclose(mine[outside], truth[outside], rtol=0, atol=1e-9)
         assert np.all(mine[~outside] <= 0) and np.all(mine[~outside] >= truth[~outside] - 1e-9)
     assert any((c < 0).any() for c in box_clearances(sets, xy, [None] * len(sets)))
+
+
+def test_trajectory_reductions_equal_the_clearance_arithmetic() -> None:
+    """The compiled reductions against numpy's: a footprint's least disc (NaN if one is), less
+    the discs' radius and R_col, NaN counted as -limit, clipped; per trajectory the least and the
+    first row below zero. Random distances with NaN, infinities and values beyond the limit."""
+    rng = np.random.default_rng(11)
+    limit = 1e9
+    for trial in range(300):
+        lengths = rng.integers(1, 8, rng.integers(1, 20))
+        n = int(lengths.sum())
+        starts = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.intp)
+        cover = None if trial % 2 else disc_cover(rng.uniform(1, 6), rng.uniform(0.5, 3), 0.0)
+        group = 1 if cover is None else cover.count
+        probed = rng.normal(0.0, 3.0, n * group)
+        for value, share in ((np.nan, 0.05), (np.inf, 0.02), (-np.inf, 0.01), (2 * limit, 0.02)):
+            probed[rng.random(len(probed)) < share] = value
+        radius = float(rng.uniform(0.0, 2.0))
+        points = probed if cover is None else footprint_distances(probed, cover)
+        clearance = np.clip(
+            np.where(np.isnan(points - radius), -limit, points - radius), -limit, limit
+        )
+        least = np.minimum.reduceat(clearance, starts)
+        first = np.minimum.reduceat(np.where(clearance < 0.0, np.arange(n), n), starts)
+        offset = 0.0 if cover is None else cover.radius
+        got = trajectory_reductions(probed, starts, group, offset, radius, limit)
+        assert np.array_equal(got[0], least) and np.array_equal(got[1], first)

@@ -9,11 +9,13 @@ segment reductions over the flattened rows.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from reach.batch import trajectory_reductions
 from reach.footprint import DiscCover, disc_centres, disc_cover, footprint_distances
 from service.wire.batch_body import ColumnBatch
 from service.wire.errors import FieldError
@@ -184,23 +186,71 @@ def _headings(field: str, k: int, columns: Columns, batch: bool) -> np.ndarray:
     return np.asarray(heading, dtype=np.float64)
 
 
-def trajectory_answers(
-    clearance: np.ndarray, points: CheckPoints, include_clearance: bool
-) -> list[list[dict[str, Any]]]:
+@dataclass(frozen=True)
+class BatchAnswers:
+    """A batch's answers per agent: its trajectories' entries, whether any point is in C, and
+    its least clearance."""
+
+    entries: list[list[dict[str, Any]]]
+    colliding: list[bool]
+    least: np.ndarray
+
+
+def batch_answers(
+    probed: Sequence[np.ndarray],
+    points: CheckPoints,
+    radii: np.ndarray,
+    include_clearance: bool,
+    limit: float,
+) -> BatchAnswers:
     """Per agent, per trajectory: ``{collision, first_collision_index, first_collision_time,
-    min_clearance}`` (and ``clearance`` per point if asked) from the clearances ``[A, points]``."""
-    if clearance.shape[0] == 0:
-        return []
+    min_clearance}`` (and ``clearance`` per point with ``include_clearance``) from each agent's
+    probe distances to K, the clearances to C being those of ``clearance_rows`` (R_col
+    ``radii``, clipped to +-``limit``). Without per-point clearances the reductions are made in
+    one compiled pass per agent (``reach.batch.trajectory_reductions``, the same arithmetic)."""
+    if not len(probed):
+        return BatchAnswers([], [], np.zeros(0))
+    per_point = None
+    if include_clearance:
+        per_point = _clearances(np.stack(probed), points, radii, limit)
+        least = np.minimum.reduceat(per_point, points.starts, axis=1)
+        rows = np.arange(points.n_points)
+        first = np.minimum.reduceat(
+            np.where(per_point < 0.0, rows[None, :], points.n_points), points.starts, axis=1
+        )
+    else:
+        group = 1 if points.cover is None else points.cover.count
+        offset = 0.0 if points.cover is None else points.cover.radius
+        reduced = [
+            trajectory_reductions(d, points.starts, group, offset, float(r), limit)
+            for d, r in zip(probed, radii.tolist(), strict=True)
+        ]
+        least = np.stack([r[0] for r in reduced])
+        first = np.stack([r[1] for r in reduced])
+    entries = _entries(least, first, points, per_point)
+    return BatchAnswers(entries, (first < points.n_points).any(axis=1).tolist(), least.min(axis=1))
+
+
+def _clearances(
+    probed: np.ndarray, points: CheckPoints, radii: np.ndarray, limit: float
+) -> np.ndarray:
+    """Clearances ``[A, points]`` to C of the probe distances ``[A, probes]``, as
+    ``service.flows.checks.clearance_rows`` takes them."""
+    distance = points.point_distances(probed) - radii[:, None]
+    distance = np.where(np.isnan(distance), -limit, distance)
+    return np.clip(distance, -limit, limit)
+
+
+def _entries(
+    least: np.ndarray, first: np.ndarray, points: CheckPoints, per_point: np.ndarray | None
+) -> list[list[dict[str, Any]]]:
+    """The entries per agent from each trajectory's least clearance and its first colliding row
+    (``points.n_points`` if none), with each one's clearances from ``per_point`` if given."""
     starts = points.starts
     ends = np.append(starts[1:], points.n_points)
-    minimum = np.minimum.reduceat(clearance, starts, axis=1).tolist()
-    rows = np.arange(points.n_points)
-    first = np.minimum.reduceat(
-        np.where(clearance < 0.0, rows[None, :], points.n_points), starts, axis=1
-    )
     hit = first < ends[None, :]
     answers = []
-    for a, least in enumerate(minimum):
+    for a, minimum in enumerate(least.tolist()):
         # Only the colliding trajectories carry an index and a time: filled in where they are.
         index: list[int | None] = [None] * len(starts)
         time: list[float | None] = [None] * len(starts)
@@ -220,12 +270,12 @@ def trajectory_answers(
                 "first_collision_time": t,
                 "min_clearance": m,
             }
-            for i, t, m in zip(index, time, least, strict=True)
+            for i, t, m in zip(index, time, minimum, strict=True)
         ]
-        if include_clearance:
-            per_point = clearance[a].tolist()
+        if per_point is not None:
+            rows = per_point[a].tolist()
             for entry, start, end in zip(agent, starts.tolist(), ends.tolist(), strict=True):
-                entry["clearance"] = per_point[start:end]
+                entry["clearance"] = rows[start:end]
         answers.append(agent)
     return answers
 

@@ -37,7 +37,7 @@ from reach.batch import (
 from reach.sets import FRTSet
 from reach.union import box_members
 from service.flows.agent_config import AgentConfig
-from service.flows.check_points import CheckPoints, check_points, check_work, trajectory_answers
+from service.flows.check_points import CheckPoints, batch_answers, check_points, check_work
 from service.flows.confidence import stored_estimates
 from service.flows.road import cut_near
 from service.runtime.answer_cost import AnswerCosts
@@ -542,17 +542,17 @@ def _respond_all(
     coarse = road.coarse
     if not states:
         return []
-    probed = np.stack([np.asarray(distances[i], dtype=np.float64) for i in range(len(states))])
-    clearance, first = clearance_rows(points.point_distances(probed), radii)
-    colliding = (clearance < 0.0).any(axis=1).tolist()  # a point, or a trajectory's point, in C
+    probed = [np.asarray(distances[i], dtype=np.float64) for i in range(len(states))]
     if points.batch:
-        batches: list[list[Any]] | None = trajectory_answers(
-            clearance, points, request.include_clearance
-        )
+        answers = batch_answers(probed, points, radii, request.include_clearance, CLEARANCE_LIMIT)
+        batches: list[list[Any]] | None = answers.entries
         rows: list[list[float]] = [[] for _ in states]
-        first[:] = -1
+        first = np.full(len(states), -1)
+        colliding, least = answers.colliding, answers.least
     else:
-        batches, rows = None, clearance.tolist()
+        clearance, first = clearance_rows(points.point_distances(np.stack(probed)), radii)
+        colliding = (clearance < 0.0).any(axis=1).tolist()  # a point in C
+        batches, rows, least = None, clearance.tolist(), clearance.min(axis=1)
     times = points.times
     horizon = services.horizon_s()
     _count_sources(services, exact, coarse)
@@ -580,7 +580,7 @@ def _respond_all(
                 assumptions=labels[i],
             )
         )
-    _note_demand(services, results, clearance.min(axis=1))
+    _note_demand(services, results, least)
     return results
 
 

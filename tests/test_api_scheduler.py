@@ -4,11 +4,13 @@ worker processes."""
 from __future__ import annotations
 
 import asyncio
+import functools
 import multiprocessing
 import os
 import pickle
 import threading
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -20,9 +22,15 @@ from models.value_fields import engine_for
 from reach.engine import FRTEngine
 from reach.frames import Pose
 from service.runtime.demand import ExactDemand
-from service.runtime.exact_worker import ExactTask, start_pool
+from service.runtime.exact_worker import ExactTask, start_pool, timed_at_server_priority
 from service.runtime.metrics import Metrics
-from service.runtime.scheduler import EXACT_OLDEST_AFTER_S, FRTKey, FRTScheduler, LRUCache
+from service.runtime.scheduler import (
+    EXACT_OLDEST_AFTER_S,
+    FRTKey,
+    FRTScheduler,
+    LRUCache,
+    timed,
+)
 from service.runtime.services import Services
 from service.runtime.settings import Settings
 
@@ -384,3 +392,80 @@ def test_demand_expires_and_is_bounded() -> None:
     assert not demand.wants("a", now=10.5) and demand.wants("c", now=10.5)
     demand.forget("c")
     assert not demand.wants("c", now=10.5)
+
+
+def test_while_agents_are_demanded_the_others_sets_keep_off_one_worker() -> None:
+    """Two workers: with no agent demanded both take background sets; once one is, background
+    sets run on one worker at most, so a demanded agent's set starts at once beside them."""
+    s = FRTScheduler(workers=2, cache_size=16, metrics=Metrics())
+    s.start()
+    s.demand = ExactDemand(hold_s=60.0, size=16)
+    gate = threading.Event()
+    started: list[str] = []
+
+    def blocked(name: str) -> Callable[[], None]:
+        return lambda: (started.append(name), gate.wait(5))  # type: ignore[func-returns-value]
+
+    try:
+        s.submit(key("far-1", 1), blocked("far-1"))
+        s.submit(key("far-2", 1), blocked("far-2"))
+        _until(lambda: len(started) == 2)  # nobody demanded: both workers busy
+        gate.set()
+        _until(lambda: s.is_ready(key("far-2", 1)) and s.is_ready(key("far-1", 1)))
+        gate.clear()
+        s.demand.note(["near"])
+        s.submit(key("far-3", 1), blocked("far-3"))
+        queued = s.submit(key("far-4", 1), blocked("far-4"))
+        _until(lambda: len(started) == 3)
+        time.sleep(0.1)
+        assert not queued.running() and len(started) == 3  # the second worker kept free
+        s.submit(key("near", 1), blocked("near"))
+        _until(lambda: "near" in started)
+        assert not queued.running()
+        gate.set()
+        queued.result(5)
+    finally:
+        gate.set()
+        s.shutdown()
+
+
+def test_demanded_sets_run_by_the_urgent_runner_and_the_others_by_timed() -> None:
+    s = FRTScheduler(workers=1, cache_size=16, metrics=Metrics())
+    s.start()
+    s.demand = ExactDemand(hold_s=60.0, size=16)
+    s.demand.note(["near"])
+    urgent: list[object] = []
+
+    def runner(compute: Callable[[], object]) -> tuple[object, float]:
+        urgent.append(compute())
+        return urgent[-1], 0.0
+
+    s.urgent = runner
+    try:
+        assert s.submit(key("near", 1), lambda: "near").result(5) == "near"
+        assert s.submit(key("far", 1), lambda: "far").result(5) == "far"
+    finally:
+        s.shutdown()
+    assert urgent == ["near"]
+
+
+@pytest.mark.skipif(not hasattr(os, "SCHED_IDLE"), reason="Linux scheduling policies")
+def test_a_worker_runs_an_urgent_set_at_the_servers_policy_and_returns_below_it(
+    analytic_model_path: Path,
+) -> None:
+    pool = start_pool(analytic_model_path, workers=1, nice=0, policy="idle")
+    try:
+        policy = functools.partial(os.sched_getscheduler, 0)
+        during, _ = pool.submit(timed_at_server_priority, policy).result(60)
+        after, _ = pool.submit(timed, policy).result(60)
+        between = os.sched_getscheduler(pool.pids[0])
+    finally:
+        pool.shutdown()
+    assert (during, after, between) == (os.SCHED_OTHER, os.SCHED_IDLE, os.SCHED_IDLE)
+
+
+def _until(condition: Callable[[], bool], timeout_s: float = 5.0) -> None:
+    end = time.monotonic() + timeout_s
+    while not condition():
+        assert time.monotonic() < end, "condition not reached"
+        time.sleep(0.005)

@@ -5,7 +5,8 @@ A check whose trajectory clears an agent's conservative set has the exact set's 
 trajectory comes near. Checks note such agents here (``service.flows.checks``: a conservative
 verdict, or a clearance from the exact set below the margin) for ``hold_s`` seconds; the scheduler
 starts their queued sets before any other (``service.runtime.scheduler``), and the rest as the
-workers allow.
+workers allow: while any agent is demanded, the others' sets keep off one worker, so that a
+demanded agent's new version starts as soon as it is submitted.
 """
 
 from __future__ import annotations
@@ -40,6 +41,12 @@ class ExactDemand:
         with self._lock:
             until = self._until.get(agent_id)
         return until is not None and (time.perf_counter() if now is None else now) < until
+
+    def active(self, now: float | None = None) -> bool:
+        """Whether any agent is demanded (the last to expire is the last in the dict)."""
+        with self._lock:
+            last = next(reversed(self._until.values()), None)
+        return last is not None and (time.perf_counter() if now is None else now) < last
 
     def forget(self, agent_id: str) -> None:
         with self._lock:

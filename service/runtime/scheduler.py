@@ -165,6 +165,8 @@ class FRTScheduler:
         self._pending: dict[FRTKey, _Job] = {}  # queued or running
         self._queue: OrderedDict[Hashable, FRTKey] = OrderedDict()  # one per agent, FIFO
         self._running: set[FRTKey] = set()
+        #: The running sets started for agents not demanded while a :attr:`demand` is set.
+        self._background: set[FRTKey] = set()
         #: When each running set was handed to a worker, and how long sets take from there
         #: (moving average), to tell whether a running set can finish within a check's wait.
         self._started: dict[FRTKey, float] = {}
@@ -174,6 +176,9 @@ class FRTScheduler:
         self._lock = threading.RLock()  # done-callbacks may run inline in submit()
         #: The agents whose queued sets start first (None: the newest first, whoever's).
         self.demand: ExactDemand | None = None
+        #: Runs a demanded agent's set in place of :func:`timed` (worker processes: at the
+        #: server's priority, ``service.runtime.exact_worker.timed_at_server_priority``).
+        self.urgent: Callable[[Callable[[], Any]], tuple[Any, float]] | None = None
 
     @property
     def workers(self) -> int:
@@ -391,9 +396,12 @@ class FRTScheduler:
                     self._dispatch_refinements()
                     return
                 key = self._next_queued()
+                if key is None:  # only others' sets queued, and their workers busy
+                    return
                 job = self._pending[key]
                 if not job.future.set_running_or_notify_cancel():
                     del self._pending[key]
+                    self._background.discard(key)
                     continue
                 self._running.add(key)
                 job.dispatched = self._started[key] = time.perf_counter()
@@ -401,27 +409,40 @@ class FRTScheduler:
                     job.dispatched - job.submitted
                 )
                 executor = self._executor
+                demanded = self.demand is not None and key not in self._background
+                run = self.urgent if demanded and self.urgent is not None else timed
                 try:
-                    handle = executor.submit(timed, job.compute)
+                    handle = executor.submit(run, job.compute)
                 except Exception as exc:  # e.g. a broken process pool; _finished says so
                     handle = Future()
                     handle.set_exception(exc)
             handle.add_done_callback(functools.partial(self._finished, key))
 
-    def _next_queued(self) -> FRTKey:
+    def _next_queued(self) -> FRTKey | None:
         """Take the next queued set (lock held, queue not empty): of the demanded agents'
         (:attr:`demand`) if any is queued, else of all; among them the newest, or the oldest once
-        it has waited ``EXACT_OLDEST_AFTER_S``."""
+        it has waited ``EXACT_OLDEST_AFTER_S``. None while agents are demanded, none of theirs is
+        queued and the others' sets hold every worker but one (kept for the demanded ones)."""
         demand = self.demand
         slots = list(self._queue)
         if demand is not None:
             wanted = [s for s in slots if self._queue[s].agent_id and demand.wants(s)]
+            if not wanted and len(self._background) >= self._background_cap(demand):
+                return None
             priority = "demanded" if wanted else "background"
             self._metrics.exact_set_starts.labels(priority).inc()
             slots = wanted or slots
         oldest = self._queue[slots[0]]
         waited = time.perf_counter() - self._pending[oldest].submitted
-        return self._queue.pop(slots[0] if waited >= EXACT_OLDEST_AFTER_S else slots[-1])
+        key = self._queue.pop(slots[0] if waited >= EXACT_OLDEST_AFTER_S else slots[-1])
+        if demand is not None and not wanted:
+            self._background.add(key)
+        return key
+
+    def _background_cap(self, demand: ExactDemand) -> int:
+        """How many sets of agents not demanded may run at once: every worker while no agent is
+        demanded, else all but one."""
+        return self._workers - 1 if self._workers > 1 and demand.active() else self._workers
 
     def _dispatch_refinements(self) -> None:
         """Start queued refinements (``RefinementQueue.next``) on free workers, keeping one worker
@@ -516,6 +537,7 @@ class FRTScheduler:
     def _finished(self, key: FRTKey, handle: Future[Any]) -> None:
         with self._lock:
             self._running.discard(key)
+            self._background.discard(key)
             started = self._started.pop(key, None)
             if started is not None and not handle.cancelled() and handle.exception() is None:
                 self._typical_s += 0.2 * (time.perf_counter() - started - self._typical_s)

@@ -117,6 +117,18 @@ def test_get_many_reads_copies_in_the_order_asked() -> None:
     assert asyncio.run(store.get("b")).prediction["mean"][0][0] == 0.0  # type: ignore[union-attr]
 
 
+def test_shared_reads_share_the_state_written_and_plain_reads_copy_it() -> None:
+    store = InMemoryAgentStore(ttl_s=60, max_agents=10)
+    written = put(store, "a", 1.0)
+    (shared,) = asyncio.run(store.get_many(["a"], shared=True))
+    assert shared is written  # no copy made for readers that only read
+    (again,) = asyncio.run(store.get_many(["a"], shared=True))
+    copy = asyncio.run(store.get("a"))
+    assert again is written and copy == written and copy is not written
+    copy.control_bounds[0] = 42.0  # type: ignore[union-attr]
+    assert asyncio.run(store.get("a")).control_bounds[0] == -1.0  # type: ignore[union-attr]
+
+
 def test_ttl_expires_agents_and_updates_refresh_it() -> None:
     clock = FakeClock()
     store = InMemoryAgentStore(ttl_s=10, max_agents=10, clock=clock)

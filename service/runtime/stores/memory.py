@@ -20,7 +20,8 @@ class _Entry:
     #: caller does to a state it was given can reach the stored one.
     data: bytes
     expires_at: float
-    #: One unpickled copy for readers that promise not to modify it (``get_many(shared=True)``).
+    #: One copy for readers that promise not to modify it (``get_many(shared=True)``): the state
+    #: written (its writer only reads it, ``AgentStore.update``), else unpickled on first read.
     view: AgentState | None = None
 
     def state(self) -> AgentState:
@@ -130,7 +131,7 @@ class InMemoryAgentStore:
             if len(self._entries) >= self._max_agents:
                 return StoreFullError(self._max_agents)
         self._entries.pop(agent_id, None)
-        self._entries[agent_id] = _Entry(data, self._clock() + self._ttl_s)
+        self._entries[agent_id] = _Entry(data, self._clock() + self._ttl_s, new)
         return new
 
     async def delete(self, agent_id: str) -> bool:

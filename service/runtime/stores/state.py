@@ -120,7 +120,8 @@ class AgentStore(Protocol):
         With ``timestamp`` the update is refused with :class:`StaleTimestampError` (409) unless it is
         strictly later than the stored state's timestamp; the check and the write are one atomic step.
         A new agent beyond the store's capacity raises :class:`StoreFullError`. Exceptions from ``fn``
-        propagate and leave the stored state unchanged.
+        propagate and leave the stored state unchanged. The new state returned is the caller's to
+        read, not to modify: the store may share it with readers of ``get_many(shared=True)``.
         """
         ...
 

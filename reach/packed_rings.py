@@ -396,19 +396,17 @@ def _least(geometry, xs, ys, which, group, a, b, exact, value, out):
     return least
 
 
-@numba.njit(cache=True, parallel=True)
+@numba.njit(cache=True)
 def _surrogates(geometry, x0, y0, c, s, world_x, world_y, which, spans, threshold, out):
-    """Each trajectory's surrogates (module docstring), the trajectories shared among the
-    threads: each writes only its own points' and probes' entries."""
     begins, ends, group = spans
     xs = np.empty(len(world_x))
     ys = np.empty(len(world_y))
-    for i in numba.prange(len(world_x)):
+    for i in range(len(world_x)):
         xs[i], ys[i] = _to_frame(x0, y0, c, s, world_x[i], world_y[i])
     points = len(xs) // group
     exact = np.zeros(points, dtype=np.bool_)
     value = np.empty(points, dtype=np.float64)
-    for k in numba.prange(len(begins)):
+    for k in range(len(begins)):
         a, b = begins[k], ends[k]
         least = _least(geometry, xs, ys, which, group, a, b, exact, value, out)
         if least >= threshold:

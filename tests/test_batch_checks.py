@@ -7,6 +7,7 @@ the true C), and a batch's answers are those of the same trajectories checked on
 
 from __future__ import annotations
 
+import base64
 import json
 import math
 import uuid
@@ -14,7 +15,7 @@ import uuid
 import httpx
 import numpy as np
 import pytest
-from frt_client import FRTClient, ValidationError
+from frt_client import FRTClient, ValidationError, inputs
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from shapely.affinity import rotate, translate
@@ -24,7 +25,7 @@ from reach.footprint import MAX_DISCS, disc_centres, disc_cover, footprint_dista
 from service.api.recent_checks import RecentChecks
 from service.flows.check_points import CheckPoints, check_points
 from service.runtime.settings import Settings
-from service.wire.batch_body import holds_booleans, parse_batch_check
+from service.wire.batch_body import holds_booleans, packed_batch, parse_batch_check
 from service.wire.errors import FieldError
 from service.wire.schemas import (
     CollisionCheckRequest,
@@ -318,6 +319,96 @@ def test_too_much_work_for_one_check_is_a_422(live_server: LiveServer, agent: st
     assert answer.json()["field"] == "trajectories"
 
 
+# ------------------------------------------------------------------------- packed trajectories
+
+
+def packed(trajectories: list[list[dict]], keys: tuple[str, ...] = ("t", "x", "y")) -> dict:
+    """The batch as packed columns: base64 of little-endian float64s, built here by numpy."""
+    out: dict = {"lengths": [len(points) for points in trajectories]}
+    for key in keys:
+        numbers = np.array([p[key] for points in trajectories for p in points], dtype="<f8")
+        out[key] = base64.b64encode(numbers.tobytes()).decode()
+    return out
+
+
+def test_a_packed_batch_is_answered_as_the_same_batch_in_columns(
+    live_server: LiveServer, agent: str
+) -> None:
+    """Random batches of random lengths, both modes, with and without a footprint and per-point
+    clearances: the packed form's answers are the columns form's, entry for entry."""
+    rng = np.random.default_rng(8)
+    footprint = {"length": 4.8, "width": 1.9, "rear_axle_to_center": 1.4}
+    with httpx.Client(base_url=live_server.url, timeout=30.0) as http:
+        for trial in range(6):
+            trajectories = [
+                random_trajectories(rng, 1, int(rng.integers(1, 25)))[0]
+                for _ in range(int(rng.integers(1, 40)))
+            ]
+            keys = ("t", "x", "y", "heading")
+            options = {
+                "mode": ("tube", "time_indexed")[trial % 2],
+                "include_clearance": trial % 3 == 0,
+                **({"footprint": footprint} if trial >= 3 else {}),
+            }
+            columns = [{k: [p[k] for p in points] for k in keys} for points in trajectories]
+            answers = [
+                http.post(
+                    "/v1/collision-check",
+                    json={"agent_ids": [agent], "deadline_ms": 5000, **options, **body},
+                )
+                for body in (
+                    {"trajectories": columns},
+                    {"packed_trajectories": packed(trajectories, keys)},
+                )
+            ]
+            assert all(a.status_code == 200 for a in answers), [a.text for a in answers]
+            first, second = (a.json()["results"][0] for a in answers)
+            assert first["verdict"] == second["verdict"] == "exact"
+            assert second["trajectories"] == first["trajectories"]
+            assert second["collision"] == first["collision"]
+
+
+@pytest.mark.parametrize(
+    ("change", "field"),
+    [
+        ({"x": "not base64!"}, "packed_trajectories.x"),
+        ({"y": base64.b64encode(b"1234567").decode()}, "packed_trajectories.y"),
+        (
+            {"t": base64.b64encode(np.array([0.0, np.nan]).tobytes()).decode()},
+            "packed_trajectories.t",
+        ),
+        (
+            {"heading": base64.b64encode(np.array([0.0, np.nan]).tobytes()).decode()},
+            "packed_trajectories.heading",
+        ),
+        ({"x": base64.b64encode(np.array([1e8, 0.0]).tobytes()).decode()}, "packed_trajectories.x"),
+        ({"lengths": [1, 2]}, "packed_trajectories"),
+        ({"lengths": [0, 2]}, "packed_trajectories.lengths.0"),
+        ({"lengths": [2] * 1025}, "packed_trajectories"),
+        ({"footprint": {"length": 4, "width": 2}}, "packed_trajectories.heading"),
+        ({"trajectory": [{"t": 0.0, "x": 0.0, "y": 0.0}]}, "body"),
+        ({"colour": "red"}, "packed_trajectories.colour"),
+    ],
+)
+def test_bad_packed_input_is_a_422_naming_the_field_and_changes_nothing(
+    live_server: LiveServer, agent: str, change: dict, field: str
+) -> None:
+    body = packed([[{"t": 0.0, "x": 1.0, "y": 1.0}, {"t": 0.1, "x": 2.0, "y": 1.0}]])
+    outside = {k: change.pop(k) for k in ("footprint", "trajectory") if k in change}
+    if change.get("lengths") == [2] * 1025:
+        body = packed([[{"t": 0.0, "x": 1.0, "y": 1.0}] * 2] * 1025)
+        change = {}
+    with httpx.Client(base_url=live_server.url, timeout=30.0) as http:
+        before = agent_version(http, agent)
+        answer = http.post(
+            f"/v1/agents/{agent}/collision-check",
+            json={"packed_trajectories": {**body, **change}, **outside},
+        )
+        assert answer.status_code == 422, answer.text
+        assert answer.json()["field"] == field, answer.json()
+        assert agent_version(http, agent) == before
+
+
 # ------------------------------------------------------------------------------------------ SDK
 
 
@@ -548,3 +639,27 @@ def test_recent_checks_keep_a_batchs_verdicts_without_its_entries() -> None:
     assert kept[0].model_dump(exclude={"trajectories"}) == batch.model_dump(
         exclude={"trajectories"}
     )
+
+
+def test_the_sdk_packs_a_batch_as_the_service_reads_it() -> None:
+    """An array and a list of trajectories of several lengths, packed by the SDK and read by the
+    request model, give the points as sent; a batch whose trajectories differ in carrying
+    headings is left to the columns form."""
+    rng = np.random.default_rng(12)
+    array = rng.uniform(-50.0, 50.0, size=(7, 5, 4))
+    ragged = [rng.uniform(-50.0, 50.0, size=(int(n), 3)).tolist() for n in (1, 4, 9)]
+    for batch in (array, array[..., :3], ragged):
+        body = {"packed_trajectories": inputs.packed_trajectories(batch)}
+        read = packed_batch(
+            CollisionCheckRequest.model_validate_json(json.dumps(body)).packed_trajectories
+        )
+        for k, sent in enumerate(batch):
+            rows = np.asarray(sent)
+            got = read[k]
+            assert np.array_equal(got.t, rows[:, 0]) and np.array_equal(got.x, rows[:, 1])
+            assert np.array_equal(got.y, rows[:, 2])
+            assert (got.heading is None) == (rows.shape[1] == 3)
+            if got.heading is not None:
+                assert np.array_equal(got.heading, rows[:, 3])
+    mixed = [array[0].tolist(), array[1, :, :3].tolist()]
+    assert inputs.packed_trajectories(mixed) is None

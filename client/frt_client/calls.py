@@ -155,12 +155,19 @@ class CheckOptions:
 
 
 def _check_body(trajectory: Any, trajectories: Any, options: CheckOptions) -> dict[str, Any]:
+    """The body of a check: a batch as packed columns (``inputs.packed_trajectories``), or as
+    columns where its trajectories differ in carrying headings."""
     if (trajectory is None) == (trajectories is None):
         raise ValidationError("give exactly one of trajectory and trajectories", field="trajectory")
+    packed = None if trajectories is None else inputs.packed_trajectories(trajectories)
+    columns = None
+    if trajectories is not None and packed is None:
+        columns = inputs.trajectories(trajectories)
     return inputs.without_none(
         {
             "trajectory": None if trajectory is None else inputs.trajectory(trajectory),
-            "trajectories": None if trajectories is None else inputs.trajectories(trajectories),
+            "trajectories": columns,
+            "packed_trajectories": packed,
             "mode": options.mode,
             "collision_radius": inputs.plain(options.collision_radius),
             "deadline_ms": inputs.plain(options.deadline_ms),

@@ -18,6 +18,9 @@ judge (its 422 names the field). A part the SDK cannot even reshape raises
 
 from __future__ import annotations
 
+import base64
+import sys
+from array import array
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -253,6 +256,35 @@ def trajectories(value: Any) -> list[dict[str, list[float]]]:
             "trajectories: expected a sequence of trajectories", field="trajectories"
         )
     return [trajectory_columns(t, f"trajectories.{k}") for k, t in enumerate(data)]
+
+
+def packed_trajectories(value: Any) -> dict[str, Any] | None:
+    """A batch (any form :func:`trajectories` takes) as the service's packed columns
+    ``{lengths, t, x, y[, heading]}``, each column the points' numbers as base64 of
+    little-endian float64s: read by the service without a JSON number per point. An ``(M, N, 3
+    or 4)`` array's columns are taken as they are. None where some trajectories carry headings
+    and others not (the columns form says that; the packed one does not)."""
+    if getattr(value, "ndim", None) == 3 and value.shape[-1] in (3, 4) and value.shape[0]:
+        keys = _HEADED_POINT_FIELDS if value.shape[-1] == 4 else _POINT_FIELDS
+        packed: dict[str, Any] = {"lengths": [int(value.shape[1])] * int(value.shape[0])}
+        for i, key in enumerate(keys):
+            packed[key] = _binary64(value[..., i].reshape(-1).astype("<f8").tobytes())
+        return packed
+    parts = trajectories(value)
+    headed = {"heading" in part for part in parts}
+    if len(headed) > 1:
+        return None
+    packed = {"lengths": [len(part["t"]) for part in parts]}
+    for key in _HEADED_POINT_FIELDS if headed == {True} else _POINT_FIELDS:
+        numbers = array("d", [v for part in parts for v in part[key]])
+        if sys.byteorder != "little":
+            numbers.byteswap()
+        packed[key] = _binary64(numbers.tobytes())
+    return packed
+
+
+def _binary64(raw: bytes) -> str:
+    return base64.b64encode(raw).decode("ascii")
 
 
 def footprint(value: Any) -> dict[str, Any] | None:

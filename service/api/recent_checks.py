@@ -12,6 +12,8 @@ from collections import deque
 from collections.abc import Sequence
 from typing import Any
 
+import numpy as np
+
 from service.wire.schemas import (
     CollisionCheckRequest,
     CollisionCheckResponse,
@@ -78,6 +80,10 @@ def _drawn_trajectory(request: CollisionCheckRequest) -> list[list[float]]:
     """The check's trajectory as ``[t, x, y]`` rows; of a batch, its first."""
     if request.trajectory is not None:
         return [[p.t, p.x, p.y] for p in request.trajectory]
+    if request.packed_trajectories is not None:
+        packed = request.packed_trajectories
+        n = packed.lengths[0]
+        return np.stack([packed.t[:n], packed.x[:n], packed.y[:n]], axis=1).tolist()
     assert request.trajectories is not None
     first = request.trajectories[0]
     if isinstance(first, TrajectoryColumns):

@@ -17,7 +17,7 @@ import numpy as np
 
 from reach.batch import trajectory_reductions
 from reach.footprint import DiscCover, disc_centres, disc_cover, footprint_distances
-from service.wire.batch_body import ColumnBatch
+from service.wire.batch_body import ColumnBatch, packed_batch
 from service.wire.errors import FieldError
 from service.wire.limits import RequestLimits, check_length, check_trajectory
 from service.wire.schemas import CollisionCheckRequest, TrajectoryColumns, TrajectoryPoint
@@ -34,6 +34,8 @@ class CheckPoints:
     cover: DiscCover | None
     batch: bool
     headings: np.ndarray | None = None
+    #: The request's field that holds the points (errors about them name it).
+    field: str = "trajectory"
 
     @property
     def n_points(self) -> int:
@@ -68,6 +70,9 @@ def check_points(request: CollisionCheckRequest, limits: RequestLimits) -> Check
     server's limits and, with a footprint, for a heading at every point: 422 naming the field."""
     if isinstance(request.trajectories, ColumnBatch):
         return _batch_points(request, request.trajectories, limits)
+    if request.packed_trajectories is not None:
+        packed = packed_batch(request.packed_trajectories)
+        return _batch_points(request, packed, limits, "packed_trajectories")
     if request.trajectories is not None:
         field, parts = "trajectories", list(request.trajectories)
         check_length(field, parts, limits.max_trajectories)
@@ -97,26 +102,33 @@ def check_points(request: CollisionCheckRequest, limits: RequestLimits) -> Check
         cover=cover,
         batch=request.trajectories is not None,
         headings=headings,
+        field=field,
     )
 
 
 def _batch_points(
-    request: CollisionCheckRequest, batch: ColumnBatch, limits: RequestLimits
+    request: CollisionCheckRequest,
+    batch: ColumnBatch,
+    limits: RequestLimits,
+    field: str = "trajectories",
 ) -> CheckPoints:
     """:func:`check_points` of a batch read in bulk: the same checks on its flat columns, in the
-    same order, naming the same fields."""
-    check_length("trajectories", batch, limits.max_trajectories)
+    same order, naming the same fields (of ``packed_trajectories``: its ``lengths`` and
+    ``heading``)."""
+    check_length(field, batch, limits.max_trajectories)
+    packed = field == "packed_trajectories"
     too_long = np.flatnonzero(batch.lengths > limits.max_trajectory_points)
     if len(too_long):
         k = int(too_long[0])
-        check_trajectory(f"trajectories.{k}", batch.t[: batch.lengths[k]], limits)
-    cover = _cover(request, "trajectories", len(batch.t), limits)
+        where = f"{field}.lengths.{k}" if packed else f"{field}.{k}"
+        check_trajectory(where, batch.t[: batch.lengths[k]], limits)
+    cover = _cover(request, field, len(batch.t), limits)
     headings = None
     if cover is not None:
         unheaded = np.flatnonzero(~batch.headed)
         if len(unheaded):
             raise FieldError(
-                f"trajectories.{int(unheaded[0])}.heading",
+                f"{field}.heading" if packed else f"{field}.{int(unheaded[0])}.heading",
                 "a footprint needs a heading at every point",
             )
         headings = batch.heading
@@ -127,6 +139,7 @@ def _batch_points(
         cover=cover,
         batch=True,
         headings=headings,
+        field=field,
     )
 
 
@@ -287,7 +300,7 @@ def check_work(points: CheckPoints, agents: int, limits: RequestLimits) -> None:
     )
     if probes * agents > limits.max_check_work:
         raise FieldError(
-            "trajectories" if points.batch else "trajectory",
+            points.field,
             f"{probes} points against {agents} agents exceed the {limits.max_check_work} "
             "point-agent pairs one check may measure: check fewer agents or trajectories",
         )

@@ -29,6 +29,7 @@ from service.wire.schemas import (
     TIME_MAX,
     TRAJECTORIES_CAP,
     TRAJECTORY_POINTS_CAP,
+    PackedTrajectories,
     TrajectoryColumns,
 )
 
@@ -83,6 +84,16 @@ class ColumnBatch(Sequence[TrajectoryColumns]):
 
     def __iter__(self) -> Iterator[TrajectoryColumns]:
         return (self[k] for k in range(len(self)))
+
+
+def packed_batch(packed: PackedTrajectories) -> ColumnBatch:
+    """A batch sent as packed columns (already read and checked by its model) as a
+    :class:`ColumnBatch`: every trajectory headed, or none."""
+    lengths = np.asarray(packed.lengths, dtype=np.intp)
+    headed = np.full(len(lengths), packed.heading is not None)
+    heading = packed.heading if packed.heading is not None else np.full(len(packed.t), np.nan)
+    columns = {"t": packed.t, "x": packed.x, "y": packed.y, "heading": heading}
+    return ColumnBatch(columns, lengths, headed)
 
 
 def parse_batch_check(raw: bytes, model: type[M]) -> M | None:

@@ -8,14 +8,20 @@ tighter limits of the server settings (``max_prediction_steps``, ``max_trajector
 
 from __future__ import annotations
 
+import base64
+import binascii
 from typing import Annotated, Any, Literal, NotRequired
 
+import numpy as np
 from pydantic import (
     BaseModel,
     ConfigDict,
     Discriminator,
     Field,
+    PlainSerializer,
+    PlainValidator,
     Tag,
+    WithJsonSchema,
     computed_field,
     model_serializer,
     model_validator,
@@ -320,6 +326,68 @@ BatchTrajectory = Annotated[
 ]
 
 
+def _binary64_column(limit: float) -> Any:
+    """A column of numbers sent as base64 of little-endian IEEE 754 binary64s (8 bytes a number),
+    read into a float64 array: each finite and within +-``limit``."""
+
+    def read(value: Any) -> np.ndarray:
+        if not isinstance(value, str):
+            raise ValueError("expected a base64 string of little-endian float64s")
+        try:
+            raw = base64.b64decode(value, validate=True)
+        except (binascii.Error, ValueError):
+            raise ValueError("not base64 (RFC 4648, with padding)") from None
+        if len(raw) % 8:
+            raise ValueError(f"{len(raw)} bytes: not a whole number of 8-byte floats")
+        numbers = np.frombuffer(raw, dtype="<f8").astype(np.float64)
+        bad = np.flatnonzero(~(np.abs(numbers) <= limit))
+        if len(bad):
+            raise ValueError(f"number {int(bad[0])} is not finite or beyond +-{limit:g}")
+        return numbers
+
+    def write(numbers: np.ndarray) -> str:
+        return base64.b64encode(np.asarray(numbers, dtype="<f8").tobytes()).decode("ascii")
+
+    return Annotated[
+        Any,
+        PlainValidator(read),
+        PlainSerializer(write, return_type=str),
+        WithJsonSchema(
+            {
+                "type": "string",
+                "contentEncoding": "base64",
+                "description": f"little-endian float64s, each finite and within +-{limit:g}",
+            }
+        ),
+    ]
+
+
+class PackedTrajectories(Request):
+    """A batch of trajectories as flat columns, each column the points' numbers in order as
+    base64 of little-endian IEEE 754 binary64s: trajectory k is the ``lengths[k]`` points after
+    those of the trajectories before it. Read without a JSON number per point: what the SDK
+    sends."""
+
+    lengths: list[Annotated[int, Field(ge=1, le=TRAJECTORY_POINTS_CAP)]] = Field(
+        min_length=1, max_length=TRAJECTORIES_CAP, description="each trajectory's points"
+    )
+    t: _binary64_column(TIME_MAX) = Field(description="seconds, on the observations' clock")  # type: ignore[valid-type]
+    x: _binary64_column(COORD_MAX)  # type: ignore[valid-type]
+    y: _binary64_column(COORD_MAX)  # type: ignore[valid-type]
+    heading: _binary64_column(ANGLE_MAX) | None = Field(  # type: ignore[valid-type]
+        None, description="the ego's heading at every point; needed with a footprint"
+    )
+
+    @model_validator(mode="after")
+    def _one_number_per_point(self) -> PackedTrajectories:
+        total = sum(self.lengths)
+        for key in ("t", "x", "y", "heading"):
+            column = getattr(self, key)
+            if column is not None and len(column) != total:
+                raise ValueError(f"{key} holds {len(column)} numbers; the lengths sum to {total}")
+        return self
+
+
 class Footprint(Request):
     """The ego's box, along the heading of each trajectory point."""
 
@@ -531,8 +599,13 @@ class CollisionCheckRequest(Request):
         max_length=TRAJECTORIES_CAP,
         description="a batch: each answered on its own, in ``trajectories`` of the answer",
     )
+    packed_trajectories: PackedTrajectories | None = Field(
+        None,
+        description="instead of ``trajectories``: the same batch as packed binary columns, "
+        "answered in ``trajectories`` of the answer",
+    )
     include_clearance: bool = Field(
-        False, description="with trajectories: each one's clearance per point too"
+        False, description="with a batch: each trajectory's clearance per point too"
     )
     footprint: Footprint | None = Field(
         None,
@@ -551,8 +624,9 @@ class CollisionCheckRequest(Request):
 
     @model_validator(mode="after")
     def _one_kind(self) -> CollisionCheckRequest:
-        if (self.trajectory is None) == (self.trajectories is None):
-            raise ValueError("give exactly one of trajectory and trajectories")
+        given = (self.trajectory, self.trajectories, self.packed_trajectories)
+        if sum(part is not None for part in given) != 1:
+            raise ValueError("give exactly one of trajectory, trajectories and packed_trajectories")
         return self
 
 

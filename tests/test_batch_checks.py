@@ -331,41 +331,60 @@ def packed(trajectories: list[list[dict]], keys: tuple[str, ...] = ("t", "x", "y
     return out
 
 
-def test_a_packed_batch_is_answered_as_the_same_batch_in_columns(
+def as_entries(columns: dict) -> list[dict]:
+    """A batch's answers as columns turned into its entries."""
+    rows = zip(*columns.values(), strict=True)
+    return [dict(zip(columns, row, strict=True)) for row in rows]
+
+
+def test_packed_batches_and_answers_as_columns_are_the_entries_of_the_same_batch(
     live_server: LiveServer, agent: str
 ) -> None:
     """Random batches of random lengths, both modes, with and without a footprint and per-point
-    clearances: the packed form's answers are the columns form's, entry for entry."""
+    clearances, against two agents: sent packed, and answered as columns, each agent's answers
+    are the default form's (columns in, an entry per trajectory out), entry for entry."""
     rng = np.random.default_rng(8)
     footprint = {"length": 4.8, "width": 1.9, "rear_axle_to_center": 1.4}
+    keys = ("t", "x", "y", "heading")
+    other = f"batch-{uuid.uuid4().hex[:8]}"
     with httpx.Client(base_url=live_server.url, timeout=30.0) as http:
-        for trial in range(6):
+        http.post(
+            f"/v1/agents/{other}/observations",
+            params={"wait_frt_ms": 10_000},
+            json={**observation(), "state": {"x": 10.0, "y": 3.0, "heading": 2.0, "speed": 4.0}},
+        ).raise_for_status()
+        for trial in range(8):
             trajectories = [
                 random_trajectories(rng, 1, int(rng.integers(1, 25)))[0]
                 for _ in range(int(rng.integers(1, 40)))
             ]
-            keys = ("t", "x", "y", "heading")
             options = {
+                "agent_ids": [agent, other],
+                "deadline_ms": 5000,
                 "mode": ("tube", "time_indexed")[trial % 2],
                 "include_clearance": trial % 3 == 0,
-                **({"footprint": footprint} if trial >= 3 else {}),
+                **({"footprint": footprint} if trial >= 4 else {}),
             }
             columns = [{k: [p[k] for p in points] for k in keys} for points in trajectories]
-            answers = [
-                http.post(
-                    "/v1/collision-check",
-                    json={"agent_ids": [agent], "deadline_ms": 5000, **options, **body},
-                )
-                for body in (
-                    {"trajectories": columns},
-                    {"packed_trajectories": packed(trajectories, keys)},
-                )
-            ]
+            bodies = (
+                {"trajectories": columns},
+                {"packed_trajectories": packed(trajectories, keys)},
+                {"packed_trajectories": packed(trajectories, keys), "answer_columns": True},
+                {"trajectories": columns, "answer_columns": True},
+            )
+            answers = [http.post("/v1/collision-check", json={**options, **b}) for b in bodies]
             assert all(a.status_code == 200 for a in answers), [a.text for a in answers]
-            first, second = (a.json()["results"][0] for a in answers)
-            assert first["verdict"] == second["verdict"] == "exact"
-            assert second["trajectories"] == first["trajectories"]
-            assert second["collision"] == first["collision"]
+            default, *others = (a.json()["results"] for a in answers)
+            assert any(t["collision"] for r in default for t in r["trajectories"])
+            for results in others:
+                for mine, theirs in zip(results, default, strict=True):
+                    assert mine["verdict"] == theirs["verdict"] == "exact"
+                    assert mine["collision"] == theirs["collision"]
+                    if "trajectory_columns" in mine:
+                        assert "trajectories" not in mine
+                        assert as_entries(mine["trajectory_columns"]) == theirs["trajectories"]
+                    else:
+                        assert mine["trajectories"] == theirs["trajectories"]
 
 
 @pytest.mark.parametrize(
@@ -388,13 +407,16 @@ def test_a_packed_batch_is_answered_as_the_same_batch_in_columns(
         ({"footprint": {"length": 4, "width": 2}}, "packed_trajectories.heading"),
         ({"trajectory": [{"t": 0.0, "x": 0.0, "y": 0.0}]}, "body"),
         ({"colour": "red"}, "packed_trajectories.colour"),
+        ({"answer_columns": "yes"}, "answer_columns"),
     ],
 )
 def test_bad_packed_input_is_a_422_naming_the_field_and_changes_nothing(
     live_server: LiveServer, agent: str, change: dict, field: str
 ) -> None:
     body = packed([[{"t": 0.0, "x": 1.0, "y": 1.0}, {"t": 0.1, "x": 2.0, "y": 1.0}]])
-    outside = {k: change.pop(k) for k in ("footprint", "trajectory") if k in change}
+    outside = {
+        k: change.pop(k) for k in ("footprint", "trajectory", "answer_columns") if k in change
+    }
     if change.get("lengths") == [2] * 1025:
         body = packed([[{"t": 0.0, "x": 1.0, "y": 1.0}] * 2] * 1025)
         change = {}
@@ -626,14 +648,22 @@ def test_recent_checks_keep_a_batchs_verdicts_without_its_entries() -> None:
     batch = CollisionCheckResponse.model_construct(
         collision=True, trajectories=entries, agent_id="a", **common
     )
+    as_columns = CollisionCheckResponse.model_construct(
+        collision=True,
+        trajectory_columns={k: [e[k] for e in entries] for k in entries[0]},
+        agent_id="c",
+        **common,
+    )
     single = CollisionCheckResponse.model_construct(
         collision=False, trajectories=None, agent_id="b", **common
     )
     recent = RecentChecks()
     recent.record(
-        CollisionCheckRequest(trajectory=[{"t": 0.0, "x": 0.0, "y": 0.0}]), [batch, single]
+        CollisionCheckRequest(trajectory=[{"t": 0.0, "x": 0.0, "y": 0.0}]),
+        [batch, single, as_columns],
     )
     ((_, _, kept),) = recent._checks
+    assert kept[2].trajectory_columns is None and as_columns.trajectory_columns is not None
     assert kept[1] is single
     assert kept[0].trajectories is None and batch.trajectories == entries
     assert kept[0].model_dump(exclude={"trajectories"}) == batch.model_dump(

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 Mode = Literal["tube", "time_indexed"]
 Part = Literal["K", "C"]
@@ -244,6 +244,30 @@ class CollisionCheck(CollisionAnswer):
     #: The map assumptions the answer holds under (the agent's set cut to the road); empty
     #: without a map and for batch checks.
     assumptions: tuple[str, ...] = ()
+
+    @model_validator(mode="before")
+    @classmethod
+    def _entries_from_columns(cls, data: Any) -> Any:
+        """A batch answered as columns (``trajectory_columns``, what the SDK asks for) read as
+        its entries, one :class:`TrajectoryAnswer` per trajectory."""
+        if not isinstance(data, dict) or data.get("trajectory_columns") is None:
+            return data
+        columns = data["trajectory_columns"]
+        keys = [key for key in _ANSWER_FIELDS if key in columns]
+        rows = zip(*(columns[k] for k in keys), strict=True)
+        entries = [dict(zip(keys, row, strict=True)) for row in rows]
+        rest = {k: v for k, v in data.items() if k != "trajectory_columns"}
+        return {**rest, "trajectories": entries}
+
+
+#: The fields of a batch's answer per trajectory, as entries and as columns.
+_ANSWER_FIELDS = (
+    "collision",
+    "first_collision_index",
+    "first_collision_time",
+    "min_clearance",
+    "clearance",
+)
 
 
 class MultiCollisionCheck(Response):

@@ -37,11 +37,13 @@ class RecentChecks:
     def record(
         self, request: CollisionCheckRequest, answers: Sequence[CollisionCheckResponse]
     ) -> None:
-        """Keep a check for the viewer: a batch's answers without their per-trajectory entries
-        (the viewer reads each agent's verdict), which would otherwise stay alive by the thousand
-        for every recent batch, for the garbage collector to traverse."""
+        """Keep a check for the viewer: a batch's answers without their per-trajectory entries or
+        columns (the viewer reads each agent's verdict), which would otherwise stay alive by the
+        thousand for every recent batch, for the garbage collector to traverse."""
         kept = [
-            a if a.trajectories is None else a.model_copy(update={"trajectories": None})
+            a
+            if a.trajectories is None and a.trajectory_columns is None
+            else a.model_copy(update={"trajectories": None, "trajectory_columns": None})
             for a in answers
         ]
         self._checks.append((time.monotonic(), request, kept))

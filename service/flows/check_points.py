@@ -201,30 +201,33 @@ def _headings(field: str, k: int, columns: Columns, batch: bool) -> np.ndarray:
 
 @dataclass(frozen=True)
 class BatchAnswers:
-    """A batch's answers per agent: its trajectories' entries, whether any point is in C, and
-    its least clearance."""
+    """A batch's answers per agent, whether any of its points is in C and its least clearance;
+    the answers are the response's ``field``: ``trajectories`` (an entry per trajectory) or
+    ``trajectory_columns`` (a list per entry field)."""
 
-    entries: list[list[dict[str, Any]]]
+    answers: list[Any]
     colliding: list[bool]
     least: np.ndarray
+    field: str = "trajectories"
 
 
 def batch_answers(
     probed: Sequence[np.ndarray],
     points: CheckPoints,
     radii: np.ndarray,
-    include_clearance: bool,
+    request: CollisionCheckRequest,
     limit: float,
 ) -> BatchAnswers:
     """Per agent, per trajectory: ``{collision, first_collision_index, first_collision_time,
-    min_clearance}`` (and ``clearance`` per point with ``include_clearance``) from each agent's
-    probe distances to K, the clearances to C being those of ``clearance_rows`` (R_col
-    ``radii``, clipped to +-``limit``). Without per-point clearances the reductions are made in
-    one compiled pass per agent (``reach.batch.trajectory_reductions``, the same arithmetic)."""
+    min_clearance}`` (and ``clearance`` per point with ``include_clearance``), as entries or, with
+    ``answer_columns``, as columns, from each agent's probe distances to K, the clearances to C
+    being those of ``clearance_rows`` (R_col ``radii``, clipped to +-``limit``). Without per-point
+    clearances the reductions are made in one compiled pass per agent
+    (``reach.batch.trajectory_reductions``, the same arithmetic)."""
     if not len(probed):
         return BatchAnswers([], [], np.zeros(0))
     per_point = None
-    if include_clearance:
+    if request.include_clearance:
         per_point = _clearances(np.stack(probed), points, radii, limit)
         least = np.minimum.reduceat(per_point, points.starts, axis=1)
         rows = np.arange(points.n_points)
@@ -240,8 +243,40 @@ def batch_answers(
         ]
         least = np.stack([r[0] for r in reduced])
         first = np.stack([r[1] for r in reduced])
-    entries = _entries(least, first, points, per_point)
-    return BatchAnswers(entries, (first < points.n_points).any(axis=1).tolist(), least.min(axis=1))
+    colliding = (first < points.n_points).any(axis=1).tolist()
+    if request.answer_columns:
+        columns = _columns_of(least, first, points, per_point)
+        return BatchAnswers(columns, colliding, least.min(axis=1), "trajectory_columns")
+    return BatchAnswers(_entries(least, first, points, per_point), colliding, least.min(axis=1))
+
+
+def _columns_of(
+    least: np.ndarray, first: np.ndarray, points: CheckPoints, per_point: np.ndarray | None
+) -> list[dict[str, Any]]:
+    """:func:`_entries` as columns: per agent a list per field, item k trajectory k's."""
+    starts = points.starts
+    ends = np.append(starts[1:], points.n_points)
+    hit = first < ends[None, :]
+    rows = np.minimum(first, points.n_points - 1)
+    index = np.where(hit, first - starts[None, :], -1).tolist()
+    time = points.times[rows].tolist()
+    answers = []
+    for a, minimum in enumerate(least.tolist()):
+        collided = hit[a].tolist()
+        pairs = zip(index[a], time[a], collided, strict=True)
+        firsts = [(i, t) if c else (None, None) for i, t, c in pairs]
+        agent: dict[str, Any] = {
+            "collision": collided,
+            "first_collision_index": [i for i, _ in firsts],
+            "first_collision_time": [t for _, t in firsts],
+            "min_clearance": minimum,
+        }
+        if per_point is not None:
+            values = per_point[a].tolist()
+            spans = zip(starts.tolist(), ends.tolist(), strict=True)
+            agent["clearance"] = [values[b:e] for b, e in spans]
+        answers.append(agent)
+    return answers
 
 
 def _clearances(

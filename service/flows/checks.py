@@ -544,8 +544,8 @@ def _respond_all(
         return []
     probed = [np.asarray(distances[i], dtype=np.float64) for i in range(len(states))]
     if points.batch:
-        answers = batch_answers(probed, points, radii, request.include_clearance, CLEARANCE_LIMIT)
-        batches: list[list[Any]] | None = answers.entries
+        answers = batch_answers(probed, points, radii, request, CLEARANCE_LIMIT)
+        batches: list[Any] | None = answers.answers
         rows: list[list[float]] = [[] for _ in states]
         first = np.full(len(states), -1)
         colliding, least = answers.colliding, answers.least
@@ -561,7 +561,7 @@ def _respond_all(
     for i, state in enumerate(states):
         conservative = exact[i] is None or i in coarse
         index = int(first[i]) if first[i] >= 0 else None
-        batch = None if batches is None else batches[i]
+        batch = {} if batches is None else {answers.field: batches[i]}
         # Built from values of the right types: no second validation of every clearance.
         results.append(
             CollisionCheckResponse.model_construct(
@@ -569,7 +569,7 @@ def _respond_all(
                 first_collision_index=index,
                 first_collision_time=None if index is None else float(times[index]),
                 clearance=rows[i],
-                trajectories=batch,
+                **batch,
                 agent_id=state.agent_id,
                 mode=request.mode,
                 collision_radius=float(radii[i]),

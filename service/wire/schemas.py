@@ -607,6 +607,11 @@ class CollisionCheckRequest(Request):
     include_clearance: bool = Field(
         False, description="with a batch: each trajectory's clearance per point too"
     )
+    answer_columns: bool = Field(
+        False,
+        description="with a batch: its answers as columns (``trajectory_columns`` of the answer, "
+        "one list per field) instead of an entry per trajectory (``trajectories``)",
+    )
     footprint: Footprint | None = Field(
         None,
         description="check the ego's box at each point (covered by discs: a lower bound of its "
@@ -640,6 +645,17 @@ class TrajectoryAnswer(TypedDict):
     clearance: NotRequired[list[float]]
 
 
+class TrajectoryColumnsAnswer(TypedDict):
+    """A batch check's answers against one agent as columns: item k of each list is trajectory
+    k's :class:`TrajectoryAnswer` field."""
+
+    collision: list[bool]
+    first_collision_index: list[int | None]
+    first_collision_time: list[float | None]
+    min_clearance: list[float]
+    clearance: NotRequired[list[list[float]]]
+
+
 class CollisionCheckResponse(CollisionAnswer):
     agent_id: str
     mode: Mode
@@ -657,6 +673,11 @@ class CollisionCheckResponse(CollisionAnswer):
         description="a batch check's answers, one per trajectory in order (then ``collision`` is "
         "any of them, ``clearance`` empty and the first collision null); absent otherwise",
     )
+    trajectory_columns: TrajectoryColumnsAnswer | None = Field(
+        None,
+        description="a batch check's answers as columns, asked for by ``answer_columns`` "
+        "(instead of ``trajectories``); absent otherwise",
+    )
     assumptions: list[str] = Field(
         default_factory=list,
         description="the map assumptions the answer holds under: the agent's set cut to the "
@@ -668,8 +689,9 @@ class CollisionCheckResponse(CollisionAnswer):
     @model_serializer(mode="wrap")
     def _drop_unset_trajectories(self, handler: Any) -> dict[str, Any]:
         data = handler(self)
-        if self.trajectories is None:
-            data.pop("trajectories", None)
+        for key in ("trajectories", "trajectory_columns"):
+            if getattr(self, key) is None:
+                data.pop(key, None)
         return data  # type: ignore[no-any-return]
 
     @computed_field(  # type: ignore[prop-decorator]

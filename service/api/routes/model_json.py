@@ -6,8 +6,9 @@ ten times what ``model_dump_json`` costs (``make bench``, case ``serialise_50_ag
 routes return this instead and keep ``response_model`` for the OpenAPI schema; their models are
 built by the engine, already valid.
 
-A batch check's answers (``trajectories``: thousands of plain dicts per agent) are written by
-orjson, the rest of each answer by the model, into the same JSON.
+A batch check's answers (``trajectories``: thousands of plain dicts per agent, or
+``trajectory_columns``: a list per field) are written by orjson, the rest of each answer by the
+model, into the same JSON.
 """
 
 from __future__ import annotations
@@ -25,10 +26,10 @@ class ModelJSONResponse(Response):
     media_type = "application/json"
 
     def render(self, content: BaseModel) -> bytes:
-        if isinstance(content, CollisionCheckResponse) and content.trajectories is not None:
+        if isinstance(content, CollisionCheckResponse) and _is_batch(content):
             return orjson.dumps(_batch_answer(content))
         if isinstance(content, MultiCollisionCheckResponse) and any(
-            r.trajectories is not None for r in content.results
+            _is_batch(r) for r in content.results
         ):
             data = content.model_dump(mode="json", exclude={"results"})
             data["results"] = [_batch_answer(r) for r in content.results]
@@ -36,8 +37,18 @@ class ModelJSONResponse(Response):
         return content.model_dump_json().encode()
 
 
+#: A batch's answers, as entries or as columns: plain dicts and lists, written by orjson.
+BATCH_FIELDS = ("trajectories", "trajectory_columns")
+
+
+def _is_batch(answer: CollisionCheckResponse) -> bool:
+    return answer.trajectories is not None or answer.trajectory_columns is not None
+
+
 def _batch_answer(answer: CollisionCheckResponse) -> dict[str, Any]:
-    """The answer as the model dumps it, its ``trajectories`` as they are (plain dicts)."""
-    data = answer.model_dump(mode="json", exclude={"trajectories"})
-    data["trajectories"] = answer.trajectories
+    """The answer as the model dumps it, its batch's answers as they are."""
+    data = answer.model_dump(mode="json", exclude=set(BATCH_FIELDS))
+    for key in BATCH_FIELDS:
+        if getattr(answer, key) is not None:
+            data[key] = getattr(answer, key)
     return data

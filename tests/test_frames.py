@@ -98,6 +98,18 @@ def test_a_bad_agent_is_rejected_by_index_and_field_and_the_others_apply(
     assert client.get("/v1/agents/b3").status_code == 404
 
 
+def test_an_agents_first_valid_entry_applies_after_an_invalid_one(client: TestClient) -> None:
+    """An entry rejected as an observation does not count as the agent's entry: the agent's
+    next valid entry applies, and a later one is its second."""
+    bad = entry("d0", extra_field=1)
+    agents = [bad, entry("d0", 1.0), entry("d0", 2.0), entry("d1")]
+    out = client.post("/v1/frames", json={"timestamp": 1.0, "agents": agents}).json()
+    assert [r.get("index") for r in out["results"]] == [0, None, 2, None]
+    assert out["results"][0]["error"]["field"] == "agents.0.extra_field"
+    assert out["results"][2]["error"]["detail"] == "agent appears twice in the frame"
+    assert client.get("/v1/agents/d0").json()["state"]["x"] == 1.0
+
+
 def test_a_stale_agent_is_a_409_entry(client: TestClient) -> None:
     client.post("/v1/frames", json={"timestamp": 5.0, "agents": [entry("st")]})
     r = client.post("/v1/frames", json={"timestamp": 4.0, "agents": [entry("st"), entry("st2")]})

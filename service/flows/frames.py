@@ -30,6 +30,8 @@ from service.wire.schemas import (
 )
 
 _agent_id: TypeAdapter[str] = TypeAdapter(AgentId)
+#: A frame's observations validated in one call: a call per entry costs more than validating it.
+_observations: TypeAdapter[list[ObservationRequest]] = TypeAdapter(list[ObservationRequest])
 
 
 def _rejection(index: int, agent_id: str | None, exc: APIError) -> FrameRejection:
@@ -41,8 +43,9 @@ def _rejection(index: int, agent_id: str | None, exc: APIError) -> FrameRejectio
     )
 
 
-def _entry(index: int, raw: dict[str, Any], timestamp: float) -> tuple[str, ObservationRequest]:
-    """The entry's agent id and observation, or a 422 naming its field (within the entry)."""
+def _entry_body(raw: dict[str, Any], timestamp: float) -> tuple[str, dict[str, Any]]:
+    """The entry's agent id and its observation's body (the frame's timestamp in it), or a 422
+    naming its field (within the entry)."""
     if "agent_id" not in raw:
         raise APIError(422, "agent_id is required", field="agent_id")
     try:
@@ -52,32 +55,58 @@ def _entry(index: int, raw: dict[str, Any], timestamp: float) -> tuple[str, Obse
     if "timestamp" in raw:
         raise APIError(422, "the frame's timestamp applies to every agent", field="timestamp")
     body = {k: v for k, v in raw.items() if k != "agent_id"}
+    body["timestamp"] = timestamp
+    return agent_id, body
+
+
+def _observation_or_error(body: dict[str, Any]) -> ObservationRequest | APIError:
+    """One entry's observation, or a 422 naming its first invalid field (within the entry)."""
     try:
-        return agent_id, ObservationRequest.model_validate({**body, "timestamp": timestamp})
+        return ObservationRequest.model_validate(body)
     except ValidationError as exc:
         payload = validation_payload(exc.errors())
         first = payload["detail"][0] if payload["detail"] else {"msg": "invalid value"}
-        raise APIError(422, str(first["msg"]), field=payload["field"]) from None
+        return APIError(422, str(first["msg"]), field=payload["field"])
+
+
+def _entries(
+    request: FrameRequest, results: list[ObservationResponse | FrameRejection | None]
+) -> list[tuple[int, str, ObservationRequest]]:
+    """The frame's valid entries (index, agent id, observation), each validated as its own
+    observation would be, an agent's second valid entry refused; the others' rejections into
+    ``results``. The observations are validated in one call, and entry by entry (to name what is
+    wrong) only when one fails."""
+    bodies: list[tuple[int, str, dict[str, Any]]] = []
+    for index, raw in enumerate(request.agents):
+        try:
+            bodies.append((index, *_entry_body(raw, request.timestamp)))
+        except APIError as exc:
+            agent_id = raw.get("agent_id") if isinstance(raw.get("agent_id"), str) else None
+            results[index] = _rejection(index, agent_id, exc)
+    try:
+        observations: list[ObservationRequest | APIError] = list(
+            _observations.validate_python([body for _, _, body in bodies])
+        )
+    except ValidationError:
+        observations = [_observation_or_error(body) for _, _, body in bodies]
+    valid, seen = [], set()
+    for (index, agent_id, _), observation in zip(bodies, observations, strict=True):
+        if not isinstance(observation, APIError) and agent_id in seen:
+            observation = APIError(422, "agent appears twice in the frame", field="agent_id")
+        if isinstance(observation, APIError):
+            results[index] = _rejection(index, agent_id, observation)
+            continue
+        seen.add(agent_id)
+        valid.append((index, agent_id, observation))
+    return valid
 
 
 async def apply_frame(services: Services, request: FrameRequest) -> FrameResponse:
     """Apply every valid entry of ``request``; one result per entry, in order."""
     check_length("agents", request.agents, services.settings.max_agents_per_frame)
     services.require_engine()
-    seen: set[str] = set()
     results: list[ObservationResponse | FrameRejection | None] = [None] * len(request.agents)
-    valid: list[tuple[int, str, ObservationRequest]] = []
-    for index, raw in enumerate(request.agents):
-        agent_id = raw.get("agent_id") if isinstance(raw.get("agent_id"), str) else None
-        try:
-            agent_id, observation = _entry(index, raw, request.timestamp)
-            if agent_id in seen:
-                raise APIError(422, "agent appears twice in the frame", field="agent_id")
-        except APIError as exc:
-            results[index] = _rejection(index, agent_id, exc)
-            continue
-        seen.add(agent_id)
-        valid.append((index, agent_id, observation))
+    valid = _entries(request, results)
     applied = await agents.observe_many(services, [(a, o) for _, a, o in valid])
     for (index, agent_id, observation), result in zip(valid, applied, strict=True):
         if isinstance(result, APIError):

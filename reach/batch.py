@@ -113,18 +113,23 @@ def trajectory_surrogates_of(
     xy_world: np.ndarray,
     t_rel: Sequence[np.ndarray | None],
     reduction: Reduction,
+    places: Sequence[tuple[np.ndarray, np.ndarray] | None] | None = None,
 ) -> list[np.ndarray]:
     """Per set, surrogates of its :meth:`FRTSet.clearance` values (``reach.packed_rings``): the
     same least value and first value below the set's threshold per trajectory, the signed
     distances computed only where those need them (with ``every_point``, every one of them, by
     the same kernel). The kernels move the world points into each set's human frame by the
-    arithmetic of ``reach.frames.human_frames``."""
+    arithmetic of ``reach.frames.human_frames``. ``places[a]``, where given, is
+    ``tubes_of(sets[a], t_rel[a])``, found already."""
     columns = point_columns(np.asarray(xy_world, dtype=np.float64).reshape(-1, 2))
     n = len(columns[0])
     out = []
     for a, (frt, t) in enumerate(zip(sets, t_rel, strict=True)):
+        known = None if places is None else places[a]
         if t is None:
             tubes, which = np.array([frt.n_slices - 1]), np.zeros(n, dtype=np.int64)
+        elif known is not None:
+            tubes, which = known
         else:
             tubes, which = tubes_of(frt, t)
         packed = frt.packed_tubes(tuple(tubes.tolist()))

@@ -257,18 +257,13 @@ def _columns_of(
     starts = points.starts
     ends = np.append(starts[1:], points.n_points)
     hit = first < ends[None, :]
-    rows = np.minimum(first, points.n_points - 1)
-    index = np.where(hit, first - starts[None, :], -1).tolist()
-    time = points.times[rows].tolist()
     answers = []
     for a, minimum in enumerate(least.tolist()):
-        collided = hit[a].tolist()
-        pairs = zip(index[a], time[a], collided, strict=True)
-        firsts = [(i, t) if c else (None, None) for i, t, c in pairs]
+        index, time = _first_collisions(hit[a], first[a], points)
         agent: dict[str, Any] = {
-            "collision": collided,
-            "first_collision_index": [i for i, _ in firsts],
-            "first_collision_time": [t for _, t in firsts],
+            "collision": hit[a].tolist(),
+            "first_collision_index": index,
+            "first_collision_time": time,
             "min_clearance": minimum,
         }
         if per_point is not None:
@@ -277,6 +272,26 @@ def _columns_of(
             agent["clearance"] = [values[b:e] for b, e in spans]
         answers.append(agent)
     return answers
+
+
+def _first_collisions(
+    hit: np.ndarray, first: np.ndarray, points: CheckPoints
+) -> tuple[list[int | None], list[float | None]]:
+    """Per trajectory of one agent, the index within it and the time of its first colliding
+    point (None for those that do not collide), from the rows ``first`` where ``hit``."""
+    index: list[int | None] = [None] * len(hit)
+    time: list[float | None] = [None] * len(hit)
+    # Only the colliding trajectories carry an index and a time: filled in where they are.
+    collided = np.flatnonzero(hit)
+    at = first[collided]
+    for k, i, t in zip(
+        collided.tolist(),
+        (at - points.starts[collided]).tolist(),
+        points.times[at].tolist(),
+        strict=True,
+    ):
+        index[k], time[k] = i, t
+    return index, time
 
 
 def _clearances(
@@ -299,18 +314,7 @@ def _entries(
     hit = first < ends[None, :]
     answers = []
     for a, minimum in enumerate(least.tolist()):
-        # Only the colliding trajectories carry an index and a time: filled in where they are.
-        index: list[int | None] = [None] * len(starts)
-        time: list[float | None] = [None] * len(starts)
-        collided = np.flatnonzero(hit[a])
-        at = first[a, collided]
-        for k, i, t in zip(
-            collided.tolist(),
-            (at - starts[collided]).tolist(),
-            points.times[at].tolist(),
-            strict=True,
-        ):
-            index[k], time[k] = i, t
+        index, time = _first_collisions(hit[a], first[a], points)
         agent = [
             {
                 "collision": i is not None,

@@ -342,13 +342,15 @@ def _exact_distances(
     costs, arrival, deadline_ms, n_agents = check
     plain = [i for i in pending if chosen[i].clearance_from_tubes]
     plain_times = {i: t_rel[i] for i in plain}
+    # Each time-indexed agent's tubes and its points' places among them, found once.
+    places = {i: tubes_of(chosen[i], t) for i, t in plain_times.items() if t is not None}
     coarse = _fit_tubes_to_deadline(
         services,
         {i: chosen[i] for i in plain},
         plain_times,
-        arrival,
-        deadline_ms,
+        (arrival, deadline_ms),
         costs.exact.upper_s(len(pending)) + costs.response.upper_s(n_agents),
+        places,
     )
     sets, times = [chosen[i] for i in plain], [plain_times[i] for i in plain]
     if reduction is None:
@@ -360,6 +362,7 @@ def _exact_distances(
             xy,
             times,
             Reduction(reduction.starts, thresholds, reduction.group, reduction.every_point),
+            [None if i in coarse else places.get(i) for i in plain],
         )
     distances.update(zip(plain, together, strict=True))
     for i in pending:
@@ -439,15 +442,18 @@ def _fit_tubes_to_deadline(
     services: Services,
     sets: dict[int, FRTSet],
     t_rel: dict[int, np.ndarray | None],
-    arrival: float,
-    deadline_ms: float,
+    deadline: tuple[float, float],
     answer_s: float,
+    places: dict[int, tuple[np.ndarray, np.ndarray]],
 ) -> set[int]:
     """Draw the tubes a time-indexed check needs, agent by agent, where all of an agent's fit in
-    the check's budget (:func:`wait_budget_s`, less the ``answer_s`` that answering then takes) at
-    the learned cost, reading the clock before each; check the agents still lacking some against
-    tubes already drawn (``service.runtime.tube_builder``), changing their ``t_rel`` in place, and draw
-    the rest between requests. Returns the agents answered so (conservatively)."""
+    the check's budget (:func:`wait_budget_s` of ``deadline``, its arrival and ``deadline_ms``,
+    less the ``answer_s`` that answering then takes) at the learned cost, reading the clock
+    before each; check the agents still lacking some against tubes already drawn
+    (``service.runtime.tube_builder``), changing their ``t_rel`` in place, and draw the rest
+    between requests. ``places[i]``: ``tubes_of`` agent i's set and times. Returns the agents
+    answered so (conservatively)."""
+    arrival, deadline_ms = deadline
     until = time.perf_counter() + wait_budget_s(arrival, deadline_ms, services.settings) - answer_s
     per_tube = services.tubes.cost.upper_s(1)
     coarse: set[int] = set()
@@ -455,7 +461,7 @@ def _fit_tubes_to_deadline(
         times = t_rel[i]
         if times is None:
             continue
-        needed = tubes_of(frt, times)[0].tolist()
+        needed = places[i][0].tolist()
         missing = frt.missing_tubes(needed)
         if not missing:
             continue

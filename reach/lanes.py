@@ -28,7 +28,8 @@ with the drivable area, its position is off R.
 
 A trajectory respecting the assumption keeps its position in the region, so the cut of
 ``reach.road_cut.CutSet`` (components of tube ∩ region connected to the start) applies to it.
-The graph is indexed once per map; each margin's grown areas once per margin, in an STRtree; the
+The graph (with its centre lines' segments, so a start lane's direction is one pass over its
+own) is indexed once per map; each margin's grown areas once per margin, in an STRtree; the
 region of each set of reachable lanes once, kept (``REGIONS_KEPT``).
 """
 
@@ -99,6 +100,29 @@ def direction_at(line: np.ndarray, x: float, y: float) -> float:
     return math.atan2(d[k, 1], d[k, 0])
 
 
+class _Segments:
+    """Each lane's centre-line segments as column arrays, computed once, for
+    :func:`direction_at` of a lane at a point without recomputing them (the same arithmetic, so
+    the same direction)."""
+
+    def __init__(self, lines: Sequence[np.ndarray]) -> None:
+        self.columns: list[tuple[np.ndarray, ...]] = []
+        self.angles: list[list[float]] = []
+        for line in lines:
+            a, d = line[:-1], line[1:] - line[:-1]
+            length2 = np.maximum((d * d).sum(axis=1), 1e-18)
+            columns = (a[:, 0].copy(), a[:, 1].copy(), d[:, 0].copy(), d[:, 1].copy(), length2)
+            self.columns.append(columns)
+            self.angles.append([math.atan2(dy, dx) for dx, dy in d.tolist()])
+
+    def direction(self, lane: int, x: float, y: float) -> float:
+        """:func:`direction_at` of lane ``lane``'s centre line at (x, y)."""
+        ax, ay, dx, dy, length2 = self.columns[lane]
+        t = np.minimum(np.maximum(((x - ax) * dx + (y - ay) * dy) / length2, 0.0), 1.0)
+        gap = np.hypot(ax + t * dx - x, ay + t * dy - y)
+        return self.angles[lane][int(gap.argmin())]
+
+
 def _angle(a: float, b: float) -> float:
     """|a - b| wrapped into [0, π]."""
     return abs((a - b + math.pi) % (2.0 * math.pi) - math.pi)
@@ -146,6 +170,13 @@ class LaneRegion:
         e0, f0, e1, f1 = self.extent
         outside = (x < e0) | (x > e1) | (y < f0) | (y > f1)
         return outside | shapely.intersects_xy(self.grown, x, y)
+
+    def covers(self, x: float, y: float) -> bool:
+        """Whether the point (x, y) lies in the region (one point of :meth:`covers_xy`)."""
+        e0, f0, e1, f1 = self.extent
+        if x < e0 or x > e1 or y < f0 or y > f1:
+            return True
+        return bool(shapely.intersects_xy(self.grown, x, y))
 
 
 class MarginIndex:
@@ -204,7 +235,9 @@ class LaneGraph:
                 if j is not None and float(overall[i] @ overall[j]) > 0.0:
                     nexts.append(j)
             self.follow.append(tuple(dict.fromkeys(nexts)))
+        self.segments = _Segments(self.lines)
         self._margins: dict[float, MarginIndex] = {}
+        self._type_masks: dict[frozenset[str], np.ndarray] = {}
         self._lock = threading.Lock()
 
     def __len__(self) -> int:
@@ -217,6 +250,16 @@ class LaneGraph:
                 self._margins[margin] = MarginIndex(self, margin, drivable)
             return self._margins[margin]
 
+    def of_types(self, lane_types: Iterable[str]) -> np.ndarray:
+        """Whether each lane is of one of ``lane_types`` (a boolean per lane, kept per set of
+        types)."""
+        key = frozenset(lane_types)
+        found = self._type_masks.get(key)
+        if found is None:
+            found = np.array([t in key for t in self.types], dtype=bool)
+            self._type_masks[key] = found
+        return found
+
     def start(
         self,
         index: MarginIndex,
@@ -226,14 +269,14 @@ class LaneGraph:
         tolerance: float,
     ) -> list[int]:
         """The start lanes of an agent at ``xy`` heading ``heading`` (see the module)."""
-        x, y = xy
+        x, y = float(xy[0]), float(xy[1])
         found = index.tree.query(shapely.Point(x, y), predicate="intersects")
-        types = set(lane_types)
+        of_types = self.of_types(lane_types)
+        direction = self.segments.direction
         return [
-            int(i)
+            i
             for i in sorted(found.tolist())
-            if self.types[i] in types
-            and _angle(direction_at(self.lines[i], x, y), heading) <= tolerance
+            if of_types[i] and _angle(direction(i, x, y), heading) <= tolerance
         ]
 
     def reachable(
@@ -245,9 +288,8 @@ class LaneGraph:
     ) -> frozenset[int]:
         """The start lanes and the lanes of ``lane_types`` whose grown area's bounding box meets
         ``box`` that follow them."""
-        types = set(lane_types)
         met = index.tree.query(shapely.box(*box))
-        within = {int(i) for i in met.tolist() if self.types[i] in types}
+        within = set(met[self.of_types(lane_types)[met]].tolist())
         reached = set(start)
         frontier = list(start)
         while frontier:
@@ -274,4 +316,4 @@ class LaneGraph:
         if not start:
             return None
         region = index.region(self.reachable(index, start, box, lane_types), self.ids, drivable)
-        return region if region.covers_xy(np.array([pose.x]), np.array([pose.y]))[0] else None
+        return region if region.covers(pose.x, pose.y) else None

@@ -56,12 +56,8 @@ def extent(frt: FRTSet) -> tuple[float, float, float, float]:
     else the tube's bounds."""
     boxes = _boxes(frt)
     if boxes is not None:
-        return (
-            float(boxes[:, 0].min()),
-            float(boxes[:, 2].min()),
-            float(boxes[:, 1].max()),
-            float(boxes[:, 3].max()),
-        )
+        lo, hi = boxes.min(axis=0).tolist(), boxes.max(axis=0).tolist()
+        return (lo[0], lo[2], hi[1], hi[3])
     return tuple(float(v) for v in frt.tube(frt.n_slices - 1).bounds)  # type: ignore[return-value]
 
 
@@ -208,6 +204,8 @@ def connected_to(geometry: BaseGeometry, start: BaseGeometry) -> BaseGeometry:
     connected), as polygons; parts of lower dimension kept grown by ``THIN_PART_M``."""
     if geometry.is_empty or start.is_empty:
         return shapely.Polygon()
+    if isinstance(geometry, shapely.Polygon):  # one component
+        return geometry if geometry.intersects(start) else shapely.Polygon()
     parts = _flat_parts(geometry)
     kept = shapely.intersects(parts, start)
     frontier = kept.copy()

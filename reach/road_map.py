@@ -320,6 +320,13 @@ class DrivableRegion:
         outside = (x < e0) | (x > e1) | (y < f0) | (y > f1)
         return outside | shapely.intersects_xy(self.grown, x, y)
 
+    def covers(self, x: float, y: float) -> bool:
+        """Whether the point (x, y) lies in R (one point of :meth:`covers_xy`)."""
+        e0, f0, e1, f1 = self.extent
+        if x < e0 or x > e1 or y < f0 or y > f1:
+            return True
+        return bool(shapely.intersects_xy(self.grown, x, y))
+
 
 def world_box(pose: Pose, bounds: tuple[float, ...]) -> tuple[float, float, float, float]:
     """The map-frame bounding box of the box ``bounds`` of the frame of ``pose``."""
@@ -437,7 +444,7 @@ class RoadMap:
 
     def on_road(self, x: float, y: float, margin: float) -> bool:
         """Whether the point (x, y) lies in R."""
-        return bool(self.region(margin).covers_xy(np.array([x]), np.array([y]))[0])
+        return self.region(margin).covers(float(x), float(y))
 
     def region_in_frame(self, pose: Pose, bounds: tuple[float, ...], margin: float) -> BaseGeometry:
         """R around the box ``bounds`` of the frame of ``pose`` (the human frame), in that frame."""

@@ -18,8 +18,8 @@ import shapely
 
 from models.rollout import sample_reference_schedules
 from reach.frames import Pose
-from reach.lanes import DRIVABLE_AREA, REACHABLE_LANES
-from reach.road_cut import CutSet, lane_cut, padded_extent
+from reach.lanes import DRIVABLE_AREA, REACHABLE_LANES, VEHICLE_LANE_TYPES, direction_at
+from reach.road_cut import CutSet, connected_to, lane_cut, padded_extent
 from reach.road_map import RoadMap, world_box
 from tests.fixtures.trajectories import simulate
 from tests.test_road_cut import (
@@ -166,3 +166,43 @@ def test_the_lane_graph_follows_successors_and_same_direction_neighbours() -> No
     assert follows == {"1": {"2"}, "2": set(), "3": set(), "4": set()}  # 3 is oncoming, 99 unknown
     lane = _road(True).lanes[0]
     assert (lane.left_neighbor, lane.right_neighbor, lane.successors) == (3, None, (2, 99))
+
+
+def test_the_indexed_start_search_is_the_definition(road) -> None:  # noqa: F811
+    """The lane graph's start lanes (centre-line segments kept per lane) and the one-point region
+    tests are their definitions evaluated directly: the lanes of the types whose grown area holds
+    the point and whose ``direction_at`` is within the tolerance; ``covers_xy`` of one point."""
+    graph = road.lane_graph
+    index = graph.index(MARGIN, road.region(MARGIN))
+    x0, y0, x1, y1 = road.extent
+    rng = np.random.default_rng(3)
+    starts = 0
+    poses = rng.uniform((x0 - 10, y0 - 10, -math.pi), (x1 + 10, y1 + 10, math.pi), (2000, 3))
+    for x, y, heading in poses.tolist():
+        holding = np.flatnonzero(shapely.intersects_xy(index.grown, x, y))
+        expected = [
+            int(i)
+            for i in holding
+            if graph.types[i] in VEHICLE_LANE_TYPES
+            and abs((direction_at(graph.lines[i], x, y) - heading + math.pi) % math.tau - math.pi)
+            <= math.radians(30.0)
+        ]
+        found = graph.start(index, (x, y), heading, VEHICLE_LANE_TYPES, math.radians(30.0))
+        assert found == expected, (x, y, heading)
+        for i in holding:
+            assert graph.segments.direction(int(i), x, y) == direction_at(graph.lines[i], x, y)
+        assert road.on_road(x, y, MARGIN) == road.region(MARGIN).covers_xy([x], [y])[0]
+        box = (x - 40.0, y - 40.0, x + 40.0, y + 40.0)
+        region = road.lane_region(Pose(x, y, heading), box, MARGIN)
+        if region is not None:
+            starts += 1
+            assert region.covers(x, y) == region.covers_xy([x], [y])[0]
+    assert starts > 20  # enough poses in a lane of their heading
+
+
+def test_one_polygon_is_one_component() -> None:
+    """A polygon is kept whole where it meets the start and dropped where it does not."""
+    polygon = shapely.Polygon([(0, 0), (4, 0), (4, 1), (1, 1), (1, 3), (0, 3)])
+    assert connected_to(polygon, shapely.box(3.5, 0.5, 5.0, 2.0)) is polygon
+    assert connected_to(polygon, shapely.Point(0.5, 2.5)) is polygon
+    assert connected_to(polygon, shapely.box(2.0, 2.0, 3.0, 3.0)).is_empty

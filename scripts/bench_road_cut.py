@@ -12,7 +12,12 @@ model's geometry, no network); then, ``--repeat`` times each:
 - ``set_all``: then every tube, slice and interval of that set cut;
 - ``lanes``: the set cut to the drivable area and the lanes it can reach (``lane_cut``: the start
   lanes found, the lane graph followed within the set's box, the region read and moved into the
-  human frame) and its whole-horizon tube cut, for the sets the lane assumption applies to.
+  human frame) and its whole-horizon tube cut, for the sets the lane assumption applies to;
+  ``lanes_warm``: the same after the first repeat, when the region of every set of reachable
+  lanes has been built (the first repeat builds each on its first use, as a server does once
+  per set of lanes while it keeps it);
+- ``on_road`` and ``start``: an observation's tests of the two assumptions at the set's pose (the
+  pose on R; the lanes holding it within 30° of its heading).
 
 Prints p50 / p99 / max in milliseconds of wall time and of the thread's CPU time (on a shared
 machine the wall time's tail is mostly other processes' turns). Timing only: nothing is asserted.
@@ -35,6 +40,7 @@ from models.runtime import ValueModel  # noqa: E402
 from models.value_fields import engine_for  # noqa: E402
 from reach.dynamics import wrap_angle  # noqa: E402
 from reach.frames import Pose, to_world_frame  # noqa: E402
+from reach.lanes import HEADING_TOLERANCE, VEHICLE_LANE_TYPES  # noqa: E402
 from reach.road_cut import CutSet, lane_cut  # noqa: E402
 from reach.road_map import RoadMap  # noqa: E402
 
@@ -76,10 +82,23 @@ class Clock:
     def start(self) -> None:
         self.started = (time.perf_counter(), time.thread_time())
 
-    def stop(self, name: str) -> None:
+    def stop(self, *names: str) -> None:
         wall, cpu = time.perf_counter() - self.started[0], time.thread_time() - self.started[1]
-        self.wall.setdefault(name, []).append(wall)
-        self.cpu.setdefault(name, []).append(cpu)
+        for name in names:
+            self.wall.setdefault(name, []).append(wall)
+            self.cpu.setdefault(name, []).append(cpu)
+
+
+def test_assumptions(clock: Clock, road: RoadMap, pose: Pose, margin: float) -> None:
+    """Time an observation's tests of the assumptions at ``pose`` (``service.flows.road``'s)."""
+    clock.start()
+    road.on_road(pose.x, pose.y, margin)
+    clock.stop("on_road")
+    clock.start()
+    graph = road.lane_graph
+    index = graph.index(margin, road.region(margin))
+    graph.start(index, (pose.x, pose.y), pose.heading, VEHICLE_LANE_TYPES, HEADING_TOLERANCE)
+    clock.stop("start")
 
 
 def main() -> None:
@@ -97,7 +116,7 @@ def main() -> None:
         for j in range(frt.n_slices):
             frt.slice(j), frt.interval(j)
     clock = Clock()
-    for _ in range(args.repeat):
+    for repeat in range(args.repeat):
         for frt in exact:
             world = to_world_frame(frt.tube(frt.n_slices - 1), frt.pose)
             clock.start()
@@ -115,11 +134,12 @@ def main() -> None:
             lanes = lane_cut(frt, road, args.margin)
             if lanes is not None:
                 lanes.tube(lanes.n_slices - 1)
-                clock.stop("lanes")
+                clock.stop("lanes", *(("lanes_warm",) if repeat else ()))
+            test_assumptions(clock, road, frt.pose, args.margin)
     print(f"{len(exact)} vehicle sets of the recorded scenario, margin {args.margin} m, "
           f"{args.repeat} repeats; milliseconds")  # fmt: skip
     for name in clock.wall:
-        print(f"{name:8s} wall {stats_ms(clock.wall[name])}   cpu {stats_ms(clock.cpu[name])}")
+        print(f"{name:10s} wall {stats_ms(clock.wall[name])}   cpu {stats_ms(clock.cpu[name])}")
 
 
 if __name__ == "__main__":

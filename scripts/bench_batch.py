@@ -5,13 +5,18 @@ waits for their exact sets, then alternates, ``--rounds`` times:
 
 - one batch: ``--trajectories`` candidate trajectories of ``--points`` points each (a fan of
   constant-curvature paths, time-indexed, as a sampling planner draws them) against every agent in
-  one ``POST /v1/collision-check``, the trajectories as columns (what the SDK sends);
+  one ``POST /v1/collision-check``, in each of ``--forms``: ``sdk``, what the SDK sends (the
+  trajectories as ``packed_trajectories``, the answers asked for as columns), and ``columns``, the
+  trajectories as columns of JSON numbers answered by an entry per trajectory (the default form,
+  which an earlier revision also takes);
 - the same, each point carrying the ego's footprint (4.8 x 1.9 m);
 - the same candidates as single checks (one trajectory against every agent per request), one after
   another over one keep-alive connection.
 
 Prints the medians and p99 of the batch at the client and at the server (``Server-Timing``), the
 time of the whole series of single checks, and their ratio; writes ``results/bench_batch.json``.
+The rows of the ``sdk`` form are ``batch`` and ``fp``, those of the ``columns`` form
+``batch_columns`` and ``fp_columns``.
 
 ``--kinds batch`` sends only the plain batches (``fp`` only those with footprints); ``--profile
 PATH`` samples this tree's service with py-spy during the rounds (py-spy's raw format: one stack a
@@ -22,7 +27,7 @@ taken, left out; run it with ``--single-series 0``, or single checks count too).
 ``--baseline REV`` starts a second service from the files of git revision ``REV`` beside this
 tree's and sends every request of a round to both in turn, so that the two are measured side by
 side under the same load (on a shared machine the p99 moves between runs by more than a change
-may move it).
+may move it); the baseline is sent the ``--baseline-forms`` (default ``columns``).
 """
 
 from __future__ import annotations
@@ -44,16 +49,18 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from frt_client.inputs import packed_trajectories  # noqa: E402
+
 from scripts.bench import server_seconds, service_at, stats  # noqa: E402
 from scripts.bench_frames import tree_of  # noqa: E402
 
 FOOTPRINT = {"length": 4.8, "width": 1.9, "rear_axle_to_center": 1.4}
 #: A batch's phases for ``--profile``: a sample counts for the first whose frames one names.
 PHASES = (
-    ("reading the body: orjson, the columns in bulk", ("parse_batch_check",)),
+    ("reading the body", ("parse_batch_check", "routes/json_body.py")),
     ("the ring kernel", ("trajectory_surrogates (reach/packed_rings",)),
     ("tubes of the points' times", ("tubes_of (", "_fit_tubes_to_deadline", "_note_tube_demand")),
-    ("the answers' entries", ("trajectory_answers",)),
+    ("the answers per trajectory", ("batch_answers",)),
     ("the rest of the answers", ("_respond_all",)),
     ("the answers' JSON", ("ModelJSONResponse.render",)),
     ("recording the check for the viewer", ("RecentChecks.record",)),
@@ -107,17 +114,42 @@ def timed_post(client: httpx.Client, body: bytes) -> tuple[float, float, dict]:
     return elapsed, server_seconds(response), response.json()
 
 
+#: The row of each kind of batch in each form (see the module docstring).
+ROWS = {
+    ("batch", "sdk"): "batch",
+    ("fp", "sdk"): "fp",
+    ("batch", "columns"): "batch_columns",
+    ("fp", "columns"): "fp_columns",
+}
+
+
+def batch_body(batch: np.ndarray, form: str) -> dict:
+    """The trajectories of a check (``[M, N, 3 or 4]`` rows) as the SDK sends them and asks for
+    the answers (``sdk``), or as columns answered by entries (``columns``)."""
+    if form == "sdk":
+        return {"packed_trajectories": packed_trajectories(batch), "answer_columns": True}
+    return {"trajectories": as_columns(batch, batch.shape[-1] == 4)}
+
+
+def entries_of(result: dict) -> list[dict]:
+    """An agent's answers per trajectory, from either form."""
+    if "trajectories" in result:
+        return result["trajectories"]
+    columns = result["trajectory_columns"]
+    return [dict(zip(columns, row, strict=True)) for row in zip(*columns.values(), strict=True)]
+
+
 @dataclass
 class Target:
-    """One service under test, its request bodies and what was measured on it."""
+    """One service under test, the forms it is sent, its request bodies and what was measured
+    on it."""
 
     name: str
     client: httpx.Client
+    forms: tuple[str, ...] = ("sdk", "columns")
     bodies: dict[str, bytes] = field(default_factory=dict)
     singles: list[bytes] = field(default_factory=list)
-    rows: dict[str, list[float]] = field(
-        default_factory=lambda: {k: [] for k in ("batch", "batch_server", "fp", "fp_server")}
-    )
+    rows: dict[str, list[float]] = field(default_factory=dict)
     series: list[float] = field(default_factory=list)
     verdicts: dict[str, int] = field(default_factory=dict)
     hits: int = 0
@@ -135,13 +167,15 @@ def prepare(target: Target, args: argparse.Namespace) -> None:
             json=observation(rng, k),
         ).raise_for_status()
     common = {"agent_ids": agents, "mode": "time_indexed", "deadline_ms": 1000}
-    kinds = args.kinds.split(",")
-    if "batch" in kinds:
-        plain = {**common, "trajectories": as_columns(batch, False)}
-        target.bodies["batch"] = json.dumps(plain).encode()
-    if "fp" in kinds:
-        boxed = {**common, "trajectories": as_columns(batch, True), "footprint": FOOTPRINT}
-        target.bodies["fp"] = json.dumps(boxed).encode()
+    for (kind, form), row in ROWS.items():
+        if kind not in args.kinds.split(",") or form not in target.forms:
+            continue
+        if kind == "batch":
+            body = {**common, **batch_body(batch[..., :3], form)}
+        else:
+            body = {**common, **batch_body(batch, form), "footprint": FOOTPRINT}
+        target.bodies[row] = json.dumps(body).encode()
+        target.rows.update({row: [], f"{row}_server": []})
     target.singles = [
         json.dumps(
             {**common, "trajectory": [dict(zip("txy", p[:3], strict=True)) for p in path.tolist()]}
@@ -161,8 +195,8 @@ def one_round(target: Target, singles: bool) -> None:
         target.rows[f"{name}_server"].append(server)
         for result in answer["results"]:
             target.verdicts[result["verdict"]] = target.verdicts.get(result["verdict"], 0) + 1
-        if name == "batch":
-            target.hits = sum(t["collision"] for r in answer["results"] for t in r["trajectories"])
+        if name.startswith("batch"):
+            target.hits = sum(t["collision"] for r in answer["results"] for t in entries_of(r))
     if singles:
         t0 = time.perf_counter()
         for body in target.singles:
@@ -176,9 +210,10 @@ def summary(target: Target) -> dict:
     results["trajectory_agent_pairs_colliding"] = target.hits
     if target.series:
         results["singles_series"] = stats(target.series)
-    if target.series and "batch" in results:
+    batch = next((k for k in ("batch", "batch_columns") if k in results), None)
+    if target.series and batch is not None:
         results["singles_over_batch_p50_ratio"] = (
-            results["singles_series"]["p50_ms"] / results["batch"]["p50_ms"]
+            results["singles_series"]["p50_ms"] / results[batch]["p50_ms"]
         )
     return results
 
@@ -226,16 +261,23 @@ def print_table(results: dict, args: argparse.Namespace) -> None:
     names = list(results)
     print(f"{'measure':44s}" + "".join(f"{name:>24s}" for name in names))
     for key, text in (
-        ("batch", "one batch request, client"),
-        ("batch_server", "one batch request, server"),
-        ("fp", "one batch request with footprints, client"),
-        ("fp_server", "one batch request with footprints, server"),
+        ("batch", "one batch request (SDK form), client"),
+        ("batch_server", "one batch request (SDK form), server"),
+        ("fp", "one batch with footprints (SDK form), client"),
+        ("fp_server", "one batch with footprints (SDK form), server"),
+        ("batch_columns", "one batch request (columns), client"),
+        ("batch_columns_server", "one batch request (columns), server"),
+        ("fp_columns", "one batch with footprints (columns), client"),
+        ("fp_columns_server", "one batch with footprints (columns), server"),
         ("singles_series", f"{args.trajectories} single checks in a row, client"),
     ):
-        if key not in results[names[0]]:
+        if not any(key in results[n] for n in names):
             continue
         cells = [
-            f"{results[n][key]['p50_ms']:.2f} / {results[n][key]['p99_ms']:.2f}" for n in names
+            f"{results[n][key]['p50_ms']:.2f} / {results[n][key]['p99_ms']:.2f}"
+            if key in results[n]
+            else "-"
+            for n in names
         ]
         print(f"{text:44s}" + "".join(f"{cell:>24s}" for cell in cells))
     for name in names:
@@ -255,6 +297,8 @@ def main() -> None:
         "--single-series", type=int, default=5, help="series of single checks, one per round"
     )
     parser.add_argument("--kinds", default="batch,fp", help="batch, fp or both (comma-separated)")
+    parser.add_argument("--forms", default="sdk,columns", help="sdk, columns or both")
+    parser.add_argument("--baseline-forms", default="columns", help="the baseline's forms")
     parser.add_argument("--profile", type=Path, help="py-spy this tree's service (raw stacks)")
     parser.add_argument("--baseline", help="a git revision to measure side by side")
     parser.add_argument("--out", type=Path, default=ROOT / "results" / "bench_batch.json")
@@ -267,7 +311,8 @@ def main() -> None:
         for name, root in trees:
             url, pid = stack.enter_context(service_at(root, args.model.resolve()))
             client = stack.enter_context(httpx.Client(base_url=url, timeout=60))
-            targets.append(Target(name, client))
+            forms = args.forms if root == ROOT else args.baseline_forms
+            targets.append(Target(name, client, tuple(forms.split(","))))
             pids.append(pid)
         results = run(targets, args, pids[0])
     print_table(results, args)

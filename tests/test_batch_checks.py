@@ -18,6 +18,7 @@ import pytest
 from frt_client import FRTClient, ValidationError, inputs
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from pydantic import ValidationError as PydanticValidationError
 from shapely.affinity import rotate, translate
 from shapely.geometry import Point, box, shape
 
@@ -503,6 +504,30 @@ def test_the_bulk_parser_reads_a_batch_as_the_model_does() -> None:
             assert (a is None) == (b is None)
             if a is not None:
                 assert np.asarray(a).tolist() == b
+
+
+@pytest.mark.parametrize(
+    "rest",
+    [
+        {"mode": "time_indexed", "footprint": {"length": 4, "width": 2.0}, "agent_ids": None},
+        {"include_clearance": True, "answer_columns": True, "deadline_ms": 20},
+        {"collision_radius": True},  # a boolean where a number goes: both refuse it
+        {"deadline_ms": "20"},
+        {"trajectories": [{"t": [0.0], "x": [1.0], "y": [2.0]}]},
+    ],
+)
+def test_the_bulk_parser_reads_a_packed_batch_as_the_model_does(rest: dict) -> None:
+    trajectories = [[{"t": 0.1 * k, "x": 1.5 * k, "y": -2.0, "heading": 0.3} for k in range(3)]]
+    body = {"packed_trajectories": packed(trajectories, ("t", "x", "y", "heading")), **rest}
+    raw = json.dumps(body).encode()
+    bulk = parse_batch_check(raw, MultiCollisionCheckRequest)
+    try:
+        model = MultiCollisionCheckRequest.model_validate_json(raw)
+    except PydanticValidationError:
+        assert bulk is None
+        return
+    assert bulk is not None
+    assert bulk.model_dump_json() == model.model_dump_json()
 
 
 @pytest.mark.parametrize(

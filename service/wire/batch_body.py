@@ -3,7 +3,8 @@
 A batch of 500 trajectories of 30 points is 45 000 numbers; validating each as a pydantic float
 costs more than the check itself. :func:`parse_batch_check` reads the body with orjson, checks the
 ``trajectories`` columns in bulk (numbers only, finite, within the schema's magnitudes, one length
-per trajectory, the schema's caps) and validates the rest of the body with the model. It returns
+per trajectory, the schema's caps) and validates the rest of the body with the model; a body with
+``packed_trajectories`` (its columns strings) the model validates as orjson parsed it. It returns
 None for any body it does not take whole (the point form, a missing or malformed column, a wrong
 type anywhere): the model's own parser then reads it and names what is wrong, so a rejected body
 is answered exactly as without this path.
@@ -105,6 +106,12 @@ def parse_batch_check(raw: bytes, model: type[M]) -> M | None:
         return None
     if not isinstance(data, dict):
         return None
+    if "packed_trajectories" in data:
+        # Its columns are strings: the model reads the body as parsed here, without a second parse.
+        try:
+            return model.model_validate(data)
+        except ValidationError:
+            return None
     columns = _columns(data.get("trajectories"), strict=holds_booleans(raw))
     if columns is None:
         return None

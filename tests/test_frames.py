@@ -435,3 +435,46 @@ def test_a_check_arriving_during_a_frame_is_answered_between_its_stages(
         "states of 1",
         "frame",
     ]
+
+
+def test_demanded_agents_are_built_first_and_their_sets_start_before_the_frame_is_stored(
+    wide: TestClient, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Agents a planner came near (``service.runtime.demand``) have their next states built in
+    the frame's first group and their exact sets submitted then, before the whole frame is
+    stored; the others' sets are submitted once it is."""
+    from service.flows import agents
+    from service.wire.schemas import ObservationRequest
+
+    services = wide.app.state.services
+    n = agents.STATES_PER_TURN + 3
+    ids = [f"early-{i}" for i in range(n)]
+    demanded = {ids[-1], ids[-2]}  # last in the frame: built first all the same
+    observations = [
+        (a, ObservationRequest.model_validate(observation(30.0, x=4.0 * i)))
+        for i, a in enumerate(ids)
+    ]
+    events: list[tuple[str, list[str]]] = []
+    real_submit, real_update = services.submit_many, services.store.update_many
+
+    keys: list[list] = []
+
+    def submit_many(jobs):  # type: ignore[no-untyped-def]
+        events.append(("submit", sorted(job.key.agent_id for job in jobs)))
+        keys.append([job.key for job in jobs])
+        return real_submit(jobs)
+
+    async def update_many(updates):  # type: ignore[no-untyped-def]
+        events.append(("store", []))
+        return await real_update(updates)
+
+    monkeypatch.setattr(services, "submit_many", submit_many)
+    monkeypatch.setattr(services.store, "update_many", update_many)
+    services.demand.note(sorted(demanded))
+    applied = asyncio.run(agents.observe_many(services, observations))
+    assert not any(isinstance(a, Exception) for a in applied)
+    assert events[0] == ("submit", sorted(demanded))
+    assert events[1] == ("store", [])
+    assert events[2] == ("submit", sorted(ids))
+    stored = asyncio.run(services.store.get_many(sorted(demanded)))
+    assert sorted(keys[0], key=str) == sorted((services.job_for(s).key for s in stored), key=str)

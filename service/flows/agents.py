@@ -38,7 +38,7 @@ from service.flows.next_state import (
     observed_predictions,
     resolve_class,
 )
-from service.flows.road import agent_assumptions, observed_on_map, relaxed_out
+from service.flows.road import agent_assumptions, observed_on_map, relaxed_out, version_road
 from service.runtime.audit import Scored, ServedVersion, count_audited_many, score_many
 from service.runtime.conservative import cached_conservative, start_conservative
 from service.runtime.jobs import FRTJob
@@ -138,18 +138,23 @@ async def observe_many(
     entries = _validated(services, observations, results)
     # Read, never modified: the next states are built anew (the store's update takes a copy).
     previous = await services.store.get_many([e.agent_id for e in entries], shared=True)
-    entries = [
-        e
-        for e, prior in zip(entries, previous, strict=True)
-        if _prepared(services, e, prior, results)
-    ]
+    entries = _demanded_first(
+        services,
+        [
+            e
+            for e, prior in zip(entries, previous, strict=True)
+            if _prepared(services, e, prior, results)
+        ],
+    )
     built: list[tuple[AgentState, Belief] | APIError] = []
     for start in range(0, len(entries), STATES_PER_TURN):
         # Between stages, the checks that arrived go first.
         held += await priority.observation_turn(priority.max_hold_s - held)
         part = entries[start : start + STATES_PER_TURN]
         inputs = [e.inputs for e in part]  # each set by _prepared
-        built += next_states([e.previous for e in part], inputs, settings, engine)  # type: ignore[arg-type]
+        states = next_states([e.previous for e in part], inputs, settings, engine)  # type: ignore[arg-type]
+        _start_demanded(services, part, states)
+        built += states
     updates: list[Update] = []
     stored_entries = []
     for entry, result in zip(entries, built, strict=True):
@@ -169,6 +174,33 @@ async def observe_many(
     stored = await services.store.update_many(updates)
     _submitted(services, stored_entries, stored, results, (building, jobs))
     return results  # type: ignore[return-value]
+
+
+def _demanded_first(services: Services, entries: list[_Entry]) -> list[_Entry]:
+    """``entries`` with the demanded agents' first (``service.runtime.demand``), else in order."""
+    demand = services.scheduler.demand
+    if demand is None:
+        return entries
+    return sorted(entries, key=lambda e: not demand.wants(e.agent_id))
+
+
+def _start_demanded(
+    services: Services, part: list[_Entry], built: list[tuple[AgentState, Belief] | APIError]
+) -> None:
+    """Submit the exact sets of the demanded agents' states just built, before the rest of the
+    frame is built and stored: a planner's check reads the new versions once they are stored,
+    and their sets are then under way or done. (A state the store rebuilds from a write in
+    between gets its own set when stored; this one is then superseded.)"""
+    demand = services.scheduler.demand
+    if demand is None:
+        return
+    jobs = [
+        services.job_for(result[0])
+        for entry, result in zip(part, built, strict=True)
+        if not isinstance(result, APIError) and demand.wants(entry.agent_id)
+    ]
+    if jobs:
+        services.submit_many(jobs)
 
 
 def _validated(
@@ -344,6 +376,7 @@ def _record_for_audit(
             collision_radius=float(radius),
             agent_class=str(state.config.get("agent_class", "car")),
             conservative=conservative,
+            road=version_road(services, state, key),
         ),
     )
     request = entry.request
@@ -405,6 +438,7 @@ def audit_out(counts: dict[str, Any] | None, gamma_state: float | None) -> Audit
         coverage_k=1.0 - counts["missed_k"] / n if n else None,
         coverage_c=1.0 - counts["missed_c"] / n if n else None,
         last_miss=counts.get("last_miss"),
+        assumption_misses=dict(counts.get("assumption_misses") or {}),
         gamma_state=gamma_state,
     )
 

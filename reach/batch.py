@@ -151,10 +151,14 @@ def trajectory_surrogates_of(
     return out
 
 
-def tubes_of(frt: FRTSet, t_rel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def tubes_of(frt: FRTSet, t_rel: np.ndarray, group: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """``frt.tubes_present(frt.tube_indices(t_rel))``: the tubes the times need (increasing) and
     each time's place among them; in one compiled pass (the same arithmetic) where the set keeps
-    :class:`FRTSet`'s definitions of both."""
+    :class:`FRTSet`'s definitions of both. ``group``: the times come in runs of that many equal
+    ones (a footprint's discs at a point), found once a run."""
+    if group > 1:
+        tubes, which = tubes_of(frt, np.asarray(t_rel).reshape(-1)[::group])
+        return tubes, np.repeat(which, group)
     kind = type(frt)
     if kind.tube_indices is FRTSet.tube_indices and kind.tubes_present is FRTSet.tubes_present:
         times = np.asarray(t_rel, dtype=np.float64).reshape(-1)

@@ -123,3 +123,14 @@ def test_trajectory_reductions_equal_the_clearance_arithmetic() -> None:
         offset = 0.0 if cover is None else cover.radius
         got = trajectory_reductions(probed, starts, group, offset, radius, limit)
         assert np.array_equal(got[0], least) and np.array_equal(got[1], first)
+
+
+def test_tubes_of_runs_of_equal_times_are_those_of_every_time(analytic_model_path: Path) -> None:
+    """A footprint's discs share their point's time: the tubes found once a run are those found
+    for every probe."""
+    engine = engine_for(ValueModel.load(analytic_model_path))
+    frt = random_sets(engine.exact, np.random.default_rng(6), 1)[0]
+    times = np.repeat(np.random.default_rng(7).uniform(-0.5, 3.5, size=40), 6)
+    whole = reach.batch.tubes_of(frt, times)
+    runs = reach.batch.tubes_of(frt, times, 6)
+    assert np.array_equal(whole[0], runs[0]) and np.array_equal(whole[1], runs[1])

@@ -342,8 +342,10 @@ def _exact_distances(
     costs, arrival, deadline_ms, n_agents = check
     plain = [i for i in pending if chosen[i].clearance_from_tubes]
     plain_times = {i: t_rel[i] for i in plain}
-    # Each time-indexed agent's tubes and its points' places among them, found once.
-    places = {i: tubes_of(chosen[i], t) for i, t in plain_times.items() if t is not None}
+    # Each time-indexed agent's tubes and its points' places among them, found once (once a
+    # point for a footprint's discs, which share its time).
+    group = 1 if reduction is None else reduction.group
+    places = {i: tubes_of(chosen[i], t, group) for i, t in plain_times.items() if t is not None}
     coarse = _fit_tubes_to_deadline(
         services,
         {i: chosen[i] for i in plain},

@@ -27,6 +27,7 @@ from service.api.recent_checks import RecentChecks
 from service.flows.check_points import CheckPoints, check_points
 from service.runtime.settings import Settings
 from service.wire.batch_body import holds_booleans, packed_batch, parse_batch_check
+from service.wire.binary64 import read_binary64
 from service.wire.errors import FieldError
 from service.wire.schemas import (
     CollisionCheckRequest,
@@ -718,3 +719,31 @@ def test_the_sdk_packs_a_batch_as_the_service_reads_it() -> None:
                 assert np.array_equal(got.heading, rows[:, 3])
     mixed = [array[0].tolist(), array[1, :, :3].tolist()]
     assert inputs.packed_trajectories(mixed) is None
+
+
+@settings(max_examples=300, deadline=None)
+@given(numbers=st.lists(st.floats(allow_nan=True, allow_infinity=True), max_size=40))
+def test_binary64_columns_read_as_the_standard_library_decodes_them(numbers: list) -> None:
+    raw = np.array(numbers, dtype="<f8").tobytes()
+    read = read_binary64(base64.b64encode(raw).decode())
+    assert read is not None and read.tobytes() == raw and read.flags.writeable
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "A===",
+        "====",
+        "AAAAAAAAAA=A",
+        "AAAAAAAAAAA",  # not a multiple of four
+        "AAAAAAAA AAA",
+        "AAAAAAAAAAA=\n",
+        "AAAAAAAAAAA==AAA",
+        "éAAAAAAAAAA=",
+        base64.b64encode(b"1234567").decode(),  # 7 bytes: no whole float
+        base64.b64encode(b"123456789").decode(),
+        "AAAAAAAAAA-=",  # the URL-safe alphabet's
+    ],
+)
+def test_binary64_columns_refuse_what_is_not_padded_base64_of_float64s(text: str) -> None:
+    assert read_binary64(text) is None

@@ -9,7 +9,6 @@ tighter limits of the server settings (``max_prediction_steps``, ``max_trajector
 from __future__ import annotations
 
 import base64
-import binascii
 from typing import Annotated, Any, Literal, NotRequired
 
 import numpy as np
@@ -30,6 +29,7 @@ from typing_extensions import TypedDict
 
 from reach.constraints import DEFAULT_PIECES, DEFAULT_SIDES, PIECES_RANGE, SIDES_RANGE
 from reach.contract import BOUND_COLUMNS
+from service.wire.binary64 import read_binary64
 
 #: Hard caps on array lengths (the settings may only lower them).
 PREDICTION_STEPS_CAP = 4096
@@ -333,13 +333,11 @@ def _binary64_column(limit: float) -> Any:
     def read(value: Any) -> np.ndarray:
         if not isinstance(value, str):
             raise ValueError("expected a base64 string of little-endian float64s")
-        try:
-            raw = base64.b64decode(value, validate=True)
-        except (binascii.Error, ValueError):
-            raise ValueError("not base64 (RFC 4648, with padding)") from None
-        if len(raw) % 8:
-            raise ValueError(f"{len(raw)} bytes: not a whole number of 8-byte floats")
-        numbers = np.frombuffer(raw, dtype="<f8").astype(np.float64)
+        numbers = read_binary64(value)
+        if numbers is None:
+            raise ValueError(
+                "not base64 (RFC 4648, padded, nothing else) of a whole number of 8-byte floats"
+            )
         bad = np.flatnonzero(~(np.abs(numbers) <= limit))
         if len(bad):
             raise ValueError(f"number {int(bad[0])} is not finite or beyond +-{limit:g}")

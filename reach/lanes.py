@@ -138,8 +138,11 @@ class LaneRegion:
         pieces: Sequence[BaseGeometry],
         index: MarginIndex,
         drivable: bool,
+        indices: Sequence[int] = (),
     ) -> None:
         self.lanes = lanes
+        #: The lanes' indices in the lane graph (``lanes`` are their ids).
+        self.indices = np.asarray(indices, dtype=np.intp)
         self.margin = index.margin
         self.drivable = drivable
         self.assumptions = (DRIVABLE_AREA, REACHABLE_LANES) if drivable else (REACHABLE_LANES,)
@@ -207,7 +210,7 @@ class MarginIndex:
                 return found
         order = sorted(reached)
         pieces = (self.clipped if drivable else self.grown)[order]
-        region = LaneRegion(frozenset(ids[i] for i in order), pieces, self, drivable)
+        region = LaneRegion(frozenset(ids[i] for i in order), pieces, self, drivable, order)
         with self._lock:
             self._regions[key] = region
             while len(self._regions) > REGIONS_KEPT:

@@ -92,6 +92,8 @@ class Audit(Response):
     coverage_k: float | None = None
     coverage_c: float | None = None
     last_miss: LastMiss | None = None
+    #: Per map assumption, the positions inside the uncut K that its cut set missed.
+    assumption_misses: dict[str, int] = Field(default_factory=dict)
     #: Adaptive gamma's running state (None without a coverage target).
     gamma_state: float | None = None
 

@@ -31,7 +31,7 @@ from reach.agent_classes import DEFAULT_CLASS
 from reach.lanes import HEADING_TOLERANCE, REACHABLE_LANES, VEHICLE_LANE_TYPES
 from reach.road_cut import DRIVABLE_AREA
 from reach.sets import FRTSet
-from service.runtime.maps import MapEntry
+from service.runtime.maps import MapEntry, VersionRoad
 from service.runtime.services import Services
 from service.runtime.stores import AgentState
 from service.wire.schemas import HumanState, RelaxedAssumptionOut
@@ -153,6 +153,14 @@ def agent_assumptions(services: Services, state: AgentState) -> tuple[MapEntry |
         return None, []
     entry = services.maps.get(state.config[MAP_KEY])
     return (entry, list(active)) if entry is not None else (None, [])
+
+
+def version_road(services: Services, state: AgentState, key: Hashable) -> VersionRoad | None:
+    """What the agent's version ``key`` (of ``state``) is answered under on its map, for the
+    audit to attribute its cut sets' misses (``service.runtime.audit``); None without a map or
+    assumptions in force."""
+    entry, active = agent_assumptions(services, state)
+    return None if entry is None else VersionRoad(services.maps, entry, key, tuple(active))
 
 
 def relaxed_out(state: AgentState) -> list[RelaxedAssumptionOut]:

@@ -42,6 +42,7 @@ from reach.distances import box_union_distances
 from reach.frames import paired_human_frames
 from reach.sets import BoxTubeSet, FRTSet
 from reach.union import box_members
+from service.runtime.maps import RoadProbe, VersionRoad
 from service.runtime.metrics import Metrics
 from service.runtime.scheduler import VERSIONS_PER_AGENT, FRTKey
 
@@ -62,6 +63,8 @@ class ServedVersion:
     agent_class: str
     #: The version's conservative set (contains its exact set).
     conservative: FRTSet
+    #: The map and the assumptions the version was answered under (None: no map, or none).
+    road: VersionRoad | None = None
 
     def covers(self, t: float) -> bool:
         return self.t0 < t <= self.horizon_end + HORIZON_SLACK_S
@@ -71,13 +74,15 @@ class _AgentAudit:
     """One agent's recent versions, when each was last scored, its counts (``fold``) and when it
     was last recorded."""
 
-    __slots__ = ("counts", "last_scored", "recorded_at", "versions")
+    __slots__ = ("counts", "last_scored", "mapped", "recorded_at", "versions")
 
     def __init__(self, max_versions: int) -> None:
         self.versions: deque[ServedVersion] = deque(maxlen=max_versions)
         self.last_scored: dict[int, float] = {}  # version -> time of its last scored position
         self.counts: dict[str, Any] | None = None
         self.recorded_at = 0.0
+        #: Whether a version recorded for the agent was cut by map assumptions.
+        self.mapped = False
 
 
 class AuditLedger:
@@ -133,6 +138,8 @@ class AuditLedger:
             while versions and versions[0].horizon_end + HORIZON_SLACK_S < served.t0:
                 versions.popleft()
             versions.append(served)
+            if served.road is not None:
+                entry.mapped = True
             if len(entry.last_scored) > len(versions):
                 oldest = versions[0].version
                 entry.last_scored = {v: t for v, t in entry.last_scored.items() if v >= oldest}
@@ -144,12 +151,15 @@ class AuditLedger:
             ):
                 agents.popitem(last=False)  # the least recently recorded: expired, or over the cap
 
-    def add(self, agent_id: str, scored: Sequence[Scored], t: float) -> None:
-        """Count the positions ``scored`` at ``t`` into the agent's counts (``fold``)."""
+    def add(self, agent_id: str, scored: Sequence[Scored], t: float) -> bool:
+        """Count the positions ``scored`` at ``t`` into the agent's counts (``fold``); whether
+        the agent has versions cut by map assumptions (then they count ``Scored.off`` too)."""
         with self._lock:
             entry = self._agents.get(agent_id)
-            if entry is not None:
-                entry.counts = fold(entry.counts, scored, t)
+            if entry is None:
+                return False
+            entry.counts = fold(entry.counts, scored, t, entry.mapped)
+            return entry.mapped
 
     def counts(self, agent_id: str) -> dict[str, Any] | None:
         """The agent's counts (``fold``), None if nothing was audited."""
@@ -177,6 +187,9 @@ class Scored(NamedTuple):
     collision_radius: float
     exact: bool
     agent_class: str
+    #: The map assumptions that cut the version's set whose region the position is off, where
+    #: the uncut K holds it: the cut set misses it for them (``VersionRoad.off``).
+    off: tuple[str, ...] = ()
 
     @property
     def in_k(self) -> bool:
@@ -215,6 +228,7 @@ def score_many(
     member of a multi-modal agent's union of them, its distance the least of its members') in
     one vectorised call, the exact sets position by position, in one call each."""
     pairs: list[tuple[int, ServedVersion, float, FRTSet, bool]] = []
+    mapped: list[int] = []  # the pairs of versions cut by map assumptions
     for p, (_, _, t, versions) in enumerate(positions):
         # Only an agent's latest versions' exact sets are cached: the older are not looked up.
         cached_from = max((v.version for v in versions), default=0) - VERSIONS_PER_AGENT + 1
@@ -225,6 +239,8 @@ def score_many(
                 and frt.clearance_from_tubes
                 and not frt.missing_tubes([frt.tube_index(t - v.t0)])
             )
+            if v.road is not None:
+                mapped.append(len(pairs))
             pairs.append((p, v, t - v.t0, frt if usable else v.conservative, usable))  # type: ignore[arg-type]
     xy = np.array([[x, y] for x, y, _, _ in positions], dtype=np.float64).reshape(-1, 2)
     distance = np.empty(len(pairs))
@@ -251,7 +267,37 @@ def score_many(
     out: list[list[Scored]] = [[] for _ in positions]
     for (p, v, t_rel, _, usable), d in zip(pairs, distance.tolist(), strict=True):
         out[p].append(Scored(v.version, float(t_rel), d, v.collision_radius, usable, v.agent_class))
+    if mapped:
+        _mark_off(out, pairs, mapped, distance, xy)
     return out
+
+
+def _mark_off(
+    out: list[list[Scored]],
+    pairs: Sequence[tuple[int, ServedVersion, float, FRTSet, bool]],
+    mapped: Sequence[int],
+    distance: np.ndarray,
+    xy: np.ndarray,
+) -> None:
+    """Mark in ``out`` each ``mapped`` pair inside its set's uncut K with the assumptions whose
+    region its position is off (``Scored.off``): each position read on its map once
+    (``VersionRoad.probe``), then set operations per pair."""
+    probes: dict[tuple[int, int], RoadProbe] = {}  # per position and map registration
+    for i in mapped:
+        p, v, _, frt, _ = pairs[i]
+        if distance[i] > 0.0:  # outside the uncut set already: a miss of K, not the map's
+            continue
+        road: VersionRoad = v.road  # type: ignore[assignment]
+        at = (p, road.entry.generation)
+        probe = probes.get(at)
+        if probe is None:
+            probe = probes[at] = road.probe(float(xy[p, 0]), float(xy[p, 1]))
+        off = road.off(frt, probe)
+        if off:
+            first = i  # the position's first pair: pairs run position by position
+            while first and pairs[first - 1][0] == p:
+                first -= 1
+            out[p][i - first] = out[p][i - first]._replace(off=off)
 
 
 def _boxes_of(frt: FRTSet, exact: bool) -> list[BoxTubeSet]:
@@ -302,16 +348,26 @@ def _boxes_until(sets: list[BoxTubeSet], t_rel: np.ndarray) -> np.ndarray:
     )
 
 
-def fold(counts: dict[str, Any] | None, scored: Sequence[Scored], t: float) -> dict[str, Any]:
+def fold(
+    counts: dict[str, Any] | None, scored: Sequence[Scored], t: float, mapped: bool = False
+) -> dict[str, Any]:
     """An agent's audit counts after the positions ``scored`` at ``t``:
-    audited, missed in K and in C, how many came from exact sets, and the last miss (the worst of
-    the latest observation with one)."""
+    audited, missed in K and in C, how many came from exact sets, the last miss (the worst of
+    the latest observation with one) and, for an agent with versions cut by map assumptions
+    (``mapped``), the positions each assumption's cut missed (``assumption_misses``: by name,
+    present once one has)."""
     out = dict(counts) if counts else {"audited": 0, "missed_k": 0, "missed_c": 0, "exact": 0}
     out.setdefault("last_miss", None)
     out["audited"] += len(scored)
     out["missed_k"] += sum(not s.in_k for s in scored)
     out["missed_c"] += sum(not s.in_c for s in scored)
     out["exact"] += sum(s.exact for s in scored)
+    off = [name for s in scored for name in s.off] if mapped else []
+    if off:
+        by_name = dict(out.get("assumption_misses") or {})
+        for name in off:
+            by_name[name] = by_name.get(name, 0) + 1
+        out["assumption_misses"] = by_name
     misses = [s for s in scored if not s.in_k]
     if misses:
         worst = max(misses, key=lambda s: s.distance_to_k)
@@ -370,12 +426,16 @@ def count_audited_many(
     of them into the fleet's rolling coverage and the ``frt_audit_*`` metrics (one counter
     update per label set)."""
     every: list[Scored] = []
+    mapped: list[Scored] = []
     for agent_id, scored, t in audited:
         if scored:
-            ledger.add(agent_id, scored, t)
+            if ledger.add(agent_id, scored, t):
+                mapped += scored
             every += scored
     if not every:
         return
+    if mapped:
+        count_assumption_misses(metrics, mapped)
     groups: dict[tuple[str, str], list[Scored]] = {}
     for s in every:
         groups.setdefault((s.agent_class, s.source), []).append(s)
@@ -390,3 +450,14 @@ def count_audited_many(
     in_k, in_c = coverage.add(every)
     metrics.audit_coverage.labels("K").set(in_k)
     metrics.audit_coverage.labels("C").set(in_c)
+
+
+def count_assumption_misses(metrics: Metrics, scored: Sequence[Scored]) -> None:
+    """Count the positions whose versions' cut sets missed them, per assumption and agent class
+    (``frt_assumption_misses_total``; ``Scored.off``)."""
+    off: dict[tuple[str, str], int] = {}
+    for s in scored:
+        for name in s.off:
+            off[name, s.agent_class] = off.get((name, s.agent_class), 0) + 1
+    for (name, klass), n in off.items():
+        metrics.assumption_misses.labels(name, klass).inc(n)

@@ -19,10 +19,18 @@ from itertools import count
 from pathlib import Path
 from typing import Any
 
+import shapely
+
 from reach.lanelet2_map import road_map_from_osm
-from reach.lanes import DRIVABLE_AREA, REACHABLE_LANES
-from reach.road_cut import CutSet, lane_cut
-from reach.road_map import MapFormatError, RoadMap
+from reach.lanes import (
+    DRIVABLE_AREA,
+    HEADING_TOLERANCE,
+    REACHABLE_LANES,
+    VEHICLE_LANE_TYPES,
+    LaneRegion,
+)
+from reach.road_cut import CutSet, lane_cut, padded_extent
+from reach.road_map import MapFormatError, RoadMap, world_box
 from reach.sets import FRTSet
 from service.runtime.settings import Settings
 from service.wire.errors import APIError, FieldError
@@ -176,6 +184,125 @@ class MapRegistry:
             while len(self._cuts) > CUT_CACHE_SIZE:
                 self._cuts.popitem(last=False)
         return cut
+
+    def kept_cut(
+        self, entry: MapEntry, key: Hashable, frt: FRTSet, assumptions: tuple[str, ...]
+    ) -> tuple[bool, CutSet | None]:
+        """Whether :meth:`cut_for` keeps ``frt`` cut by ``assumptions``, and that cut (None where
+        nothing applied), without cutting, keeping or reordering anything."""
+        with self._lock:
+            found = self._cuts.get(((key, assumptions), entry.generation))
+        if found is not None and found[0] is frt:
+            return True, found[1]
+        return False, None
+
+
+@dataclass(frozen=True, slots=True)
+class RoadProbe:
+    """Where one map-frame point lies on a map, read once for every version it is audited
+    against (:meth:`VersionRoad.probe`): on R or not, and the vehicle lanes whose area grown by
+    the margin holds it (None outside the map's extent, where every L holds it)."""
+
+    on_road: bool
+    lanes: frozenset[int] | None
+
+
+@dataclass(slots=True)
+class _SetRegions:
+    """The regions that cut one set of a version: R or not, and its reachable lanes (None where
+    the lane assumption does not cut it; found on first need)."""
+
+    frt: FRTSet
+    drivable: bool
+    lanes: bool
+    reached: frozenset[int] | None = None
+
+
+class VersionRoad:
+    """What one version of an agent was answered under on a map, for the coverage audit: its
+    map, its key and the assumptions in force. :meth:`off` says which of them a point is off the
+    region of, for the version's exact or conservative set: the regions of that set's cut where
+    :meth:`MapRegistry.cut_for` keeps it (what the answers came from), else read as the cut reads
+    them (``reach.road_cut.lane_cut``: R, and the lanes reachable within the set's box where they
+    apply), as sets of lane indices: no cut, no union of lanes built. The start lanes are found
+    once per version, the lanes they reach once per set and only for a point in a lane that is
+    not a start lane."""
+
+    __slots__ = ("_sets", "_start", "assumptions", "entry", "key", "registry")
+
+    def __init__(
+        self, registry: MapRegistry, entry: MapEntry, key: Hashable, assumptions: tuple[str, ...]
+    ) -> None:
+        self.registry = registry
+        self.entry = entry
+        self.key = key
+        self.assumptions = assumptions
+        self._start: frozenset[int] | None = None
+        self._sets: dict[bool, _SetRegions] = {}
+
+    def probe(self, x: float, y: float) -> RoadProbe:
+        """Where the map-frame point (x, y) lies on this version's map."""
+        road, margin = self.entry.road, self.registry.margin
+        x0, y0, x1, y1 = road.extent
+        if x < x0 or x > x1 or y < y0 or y > y1:
+            return RoadProbe(True, None)
+        graph = road.lane_graph
+        index = graph.index(margin, road.region(margin))
+        found = index.tree.query(shapely.Point(x, y), predicate="intersects")
+        lanes = found[graph.of_types(VEHICLE_LANE_TYPES)[found]].tolist()
+        return RoadProbe(road.on_road(x, y, margin), frozenset(lanes))
+
+    def off(self, frt: FRTSet, probe: RoadProbe) -> tuple[str, ...]:
+        """The assumptions that cut ``frt`` (a set of this version) whose region the point of
+        ``probe`` is off: R for ``drivable_area``, L for ``reachable_lanes``."""
+        regions = self._sets.get(frt.conservative)
+        if regions is None or regions.frt is not frt:
+            regions = self._regions(frt)
+            self._sets[frt.conservative] = regions
+        off = (DRIVABLE_AREA,) if regions.drivable and not probe.on_road else ()
+        if regions.lanes and probe.lanes is not None and not self._in_lanes(regions, probe.lanes):
+            off += (REACHABLE_LANES,)
+        return off
+
+    def _regions(self, frt: FRTSet) -> _SetRegions:
+        key = (self.key, frt.conservative)
+        kept, cut = self.registry.kept_cut(self.entry, key, frt, self.assumptions)
+        if kept:
+            source = None if cut is None else cut.source
+            drivable = source is not None and DRIVABLE_AREA in source.assumptions
+            if not isinstance(source, LaneRegion):
+                return _SetRegions(frt, drivable, False)
+            return _SetRegions(frt, drivable, True, frozenset(source.indices.tolist()))
+        drivable = DRIVABLE_AREA in self.assumptions
+        return _SetRegions(
+            frt, drivable, REACHABLE_LANES in self.assumptions and self._applies(frt)
+        )
+
+    def _applies(self, frt: FRTSet) -> bool:
+        """Whether the lanes cut ``frt`` (``lane_cut`` not None): a start lane holds its pose."""
+        if self._start is None:
+            road, margin, pose = self.entry.road, self.registry.margin, frt.pose
+            graph = road.lane_graph
+            index = graph.index(margin, road.region(margin))
+            xy = (pose.x, pose.y)
+            start = graph.start(index, xy, pose.heading, VEHICLE_LANE_TYPES, HEADING_TOLERANCE)
+            self._start = frozenset(start)
+        return bool(self._start)
+
+    def _in_lanes(self, regions: _SetRegions, holding: frozenset[int]) -> bool:
+        """Whether a lane the set reaches holds the point (``holding``: the lanes that do)."""
+        if not holding:
+            return False
+        if regions.reached is None:
+            if self._start is not None and not holding.isdisjoint(self._start):
+                return True  # a start lane: reached by every set of the version
+            road, margin, pose = self.entry.road, self.registry.margin, regions.frt.pose
+            graph = road.lane_graph
+            index = graph.index(margin, road.region(margin))
+            box = world_box(pose, padded_extent(regions.frt))
+            start = sorted(self._start or ())
+            regions.reached = graph.reachable(index, start, box, VEHICLE_LANE_TYPES)
+        return not holding.isdisjoint(regions.reached)
 
 
 def registry_for(settings: Settings) -> MapRegistry:

@@ -173,6 +173,14 @@ class Metrics:
             ["assumption", "agent_class"],
             registry=r,
         )
+        self.assumption_misses = Counter(
+            "frt_assumption_misses",
+            "Audited positions inside an earlier version's uncut K but off the region of a map "
+            "assumption that version was cut by (so its cut set misses them), by assumption and "
+            "agent class (docs/maps.md)",
+            ["assumption", "agent_class"],
+            registry=r,
+        )
 
     def render(self) -> bytes:
         return generate_latest(self.registry)

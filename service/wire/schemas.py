@@ -229,6 +229,11 @@ class AuditOut(Response):
     coverage_k: float | None = Field(description="1 - missed_k / audited; null before any")
     coverage_c: float | None = Field(description="1 - missed_c / audited; null before any")
     last_miss: LastMissOut | None = None
+    assumption_misses: dict[str, int] = Field(
+        default_factory=dict,
+        description="per map assumption, the audited positions inside the uncut K but off the "
+        "assumption's region, which the version's cut set missed (docs/maps.md); {} if none",
+    )
     gamma_state: float | None = Field(
         None, description="adaptive gamma's running state (may exceed the gamma served); null: off"
     )

@@ -17,6 +17,8 @@ from typing import Any
 import pytest
 import shapely
 from fastapi.testclient import TestClient
+from frt_client import calls
+from frt_client.models import AgentContours
 from shapely.geometry import Polygon, shape
 
 from service.flows import maps as map_flows
@@ -204,3 +206,24 @@ def test_without_the_flag_nothing_changes_and_without_assumptions_uncut_is_null(
     only_k = contours(client, cars["road"], include_uncut="true", include="K", tube="false")
     assert only_k["uncut"]["tube"] is None
     assert all(s["C"] is None and s["K"] is not None for s in only_k["uncut"]["slices"])
+
+
+def test_the_stream_frt_op_takes_include_uncut(client: TestClient, cars: dict[str, str]) -> None:
+    """The stream answers as the route does, flag or not; a flag that is not a boolean is a 422
+    naming it; the SDK sends it both ways."""
+    http = contours(client, cars["road"], include_uncut="true")
+    message = {"op": "frt", "agent_id": cars["road"], "slices": [1.0, 2.5]}
+    with client.websocket_connect("/v1/stream") as ws:
+        answers = []
+        for i, extra in enumerate(({"include_uncut": True}, {}, {"include_uncut": "yes"})):
+            ws.send_json({"id": i, **message, **extra})
+            answers.append(ws.receive_json())
+    flagged, plain, refused = answers
+    assert flagged["ok"] and flagged["result"] == http
+    assert plain["ok"] and "uncut" not in plain["result"]
+    assert not refused["ok"] and refused["error"]["field"] == "include_uncut"
+    call = calls.contours(cars["road"], slices=[1.0], include_uncut=True)
+    assert call.params["include_uncut"] == "true" and call.message["include_uncut"] is True  # type: ignore[index]
+    assert "include_uncut" not in calls.contours(cars["road"]).message  # type: ignore[operator]
+    answer = AgentContours.model_validate(http)
+    assert answer.uncut is not None and answer.uncut.tube is not None

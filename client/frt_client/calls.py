@@ -226,6 +226,7 @@ def contours(
     include: Iterable[str] = ("K", "C"),
     tube: bool = True,
     collision_radius: float | None = None,
+    include_uncut: bool = False,
 ) -> Call[AgentContours]:
     times = [float(t) for t in inputs.plain(slices)]
     parts = [str(p) for p in include]
@@ -235,6 +236,8 @@ def contours(
         params["slices"] = ",".join(repr(t) for t in times)
     if radius is not None:
         params["collision_radius"] = repr(radius)
+    if include_uncut:
+        params["include_uncut"] = "true"
     message = inputs.without_none(
         {
             "agent_id": agent_id,
@@ -242,6 +245,7 @@ def contours(
             "include": parts,
             "tube": bool(tube),
             "collision_radius": radius,
+            "include_uncut": True if include_uncut else None,
         }
     )
     return Call(

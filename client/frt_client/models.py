@@ -314,6 +314,9 @@ class AgentContours(ContourSet):
     conservative: bool
     #: The map assumptions the set drawn was cut by (empty without a map).
     assumptions: tuple[str, ...] = ()
+    #: Asked for with ``include_uncut``: the same contours of the set before the map assumptions
+    #: cut it (None where none cut it).
+    uncut: ContourSet | None = None
 
 
 class ConstraintPiece(Response):

@@ -180,6 +180,7 @@ class Operations:
         include: Iterable[str] = ("K", "C"),
         tube: bool = True,
         collision_radius: float | None = None,
+        include_uncut: bool = False,
     ) -> AgentContours:
         """GeoJSON contours of the agent's K and C: the whole-horizon tube and time slices.
 
@@ -187,6 +188,8 @@ class Operations:
             slices: seconds after the last observation, each in ``[0, horizon]``.
             include: any of ``"K"`` (the FRT) and ``"C"`` (K inflated by R_col).
             tube: include the whole-horizon tube.
+            include_uncut: also the same contours of the set before the agent's map
+                assumptions cut it (``uncut``).
         """
         return self.send(
             calls.contours(
@@ -195,6 +198,7 @@ class Operations:
                 include=include,
                 tube=tube,
                 collision_radius=collision_radius,
+                include_uncut=include_uncut,
             )
         )
 

@@ -7,8 +7,9 @@ body, plus ``agent_id`` where the HTTP path has one:
 - ``frame``: one frame of many agents (``POST /v1/frames``);
 - ``collision_check``: ``agent_id`` + a check; without ``agent_id``, the multi-agent check
   (``agent_ids`` or all);
-- ``frt``: ``agent_id`` + ``slices``, ``include``, ``tube``, ``collision_radius`` (the agent's
-  contours); without ``agent_id``, the stateless ``POST /v1/frt`` body;
+- ``frt``: ``agent_id`` + ``slices``, ``include``, ``tube``, ``collision_radius``,
+  ``include_uncut`` (the agent's contours, and with ``include_uncut`` those of its set before the
+  map assumptions cut it); without ``agent_id``, the stateless ``POST /v1/frt`` body;
 - ``constraints``: ``agent_id`` + ``slices``, ``max_sides``, ``max_pieces``, ``collision_radius``
   (``GET /v1/agents/{agent_id}/constraints``);
 - ``get_agent``, ``delete_agent``: ``agent_id``;
@@ -31,7 +32,7 @@ import time
 from collections.abc import Awaitable, Callable
 from typing import Any
 
-from pydantic import BaseModel, TypeAdapter, ValidationError
+from pydantic import BaseModel, StrictBool, TypeAdapter, ValidationError
 
 from service.api import recent_checks
 from service.flows import agents, checks, constraints, contours, frames, stateless
@@ -53,6 +54,7 @@ log = logging.getLogger("frt.stream")
 
 _agent_id = TypeAdapter(AgentId)
 _radius = TypeAdapter(Radius | None)
+_flag = TypeAdapter(StrictBool)
 
 Handler = Callable[[Services, dict[str, Any], float], Awaitable[BaseModel | dict[str, Any]]]
 
@@ -103,8 +105,14 @@ async def _frt(services: Services, msg: dict[str, Any], arrival: float) -> BaseM
         raise APIError(
             422, "collision_radius must be a number in [0, 100] m", field="collision_radius"
         ) from None
+    try:
+        include_uncut = _flag.validate_python(msg.pop("include_uncut", False))
+    except ValidationError:
+        raise APIError(422, "include_uncut must be true or false", field="include_uncut") from None
     query = ContourQuery.model_validate(msg)
-    return await contours.agent_contours(services, agent_id, query, radius, location="")
+    return await contours.agent_contours(
+        services, agent_id, query, radius, location="", include_uncut=include_uncut
+    )
 
 
 async def _constraints(services: Services, msg: dict[str, Any], arrival: float) -> BaseModel:

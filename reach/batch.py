@@ -3,7 +3,8 @@
 A planner's check of 50 agents whose exact sets are late answers from 50 :class:`BoxTubeSet`\\ s;
 ``BoxTubeSet.clearance`` one by one is a dozen small numpy calls per agent. Here the agents'
 boxes are stacked ([A, M, 4]) and the distances of every point to every box of every agent come
-from one call of the same kernel (``reach.engine.box_union_distances``), so the values are the same.
+from one compiled pass (``reach.distances.box_union_distances_until``) with the arithmetic of
+``box_union_distances``, so the values are the same.
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ import numba
 import numpy as np
 from shapely.geometry.base import BaseGeometry
 
-from reach.distances import box_union_distances, signed_distances
+from reach.distances import box_union_distances_until, compile_distance_kernels, signed_distances
 from reach.frames import human_frames
 from reach.packed_rings import point_columns, signed_distances_packed, trajectory_surrogates
 from reach.sets import BoxTubeSet, FRTSet
@@ -67,14 +68,13 @@ def _same_size_pass(
     sets: list[BoxTubeSet], xy_world: np.ndarray, t_rel: list[np.ndarray | None]
 ) -> list[np.ndarray]:
     x, y = human_frames(xy_world, [s.pose for s in sets])  # [A, N]
-    b = np.stack([s.boxes for s in sets])[:, None, :, :]  # [A, 1, M, 4]
-    counted = None  # every box counts for every point, unless a check is time-indexed
-    if any(t is not None for t in t_rel):
+    b = np.stack([s.boxes for s in sets])  # [A, M, 4]
+    if any(t is not None for t in t_rel):  # time-indexed: the boxes up to each point's tube
         index = _tube_indices(sets, t_rel, len(xy_world))  # [A, N]
-        limit = np.take_along_axis(np.stack([frt.boxes_until for frt in sets]), index, axis=1)
-        counted = np.arange(b.shape[2])[None, None, :] < limit[:, :, None]
-    x, y = x[:, :, None], y[:, :, None]
-    return list(box_union_distances(x, y, b, counted))
+        until = np.take_along_axis(np.stack([frt.boxes_until for frt in sets]), index, axis=1)
+    else:
+        until = np.full(x.shape, b.shape[1])
+    return list(box_union_distances_until(x, y, b, until))
 
 
 def _tube_indices(sets: list[BoxTubeSet], t_rel: list[np.ndarray | None], n: int) -> np.ndarray:
@@ -172,6 +172,7 @@ def compile_batch_kernels() -> None:
     """Compile (or load from numba's cache) this module's kernels before a check needs them: a
     first call takes a few hundred milliseconds, which a check's deadline cannot hold."""
     _tubes_present(np.zeros(1), 0.1, 3.0, 30, np.empty(1, dtype=np.int64))
+    compile_distance_kernels()
     trajectory_reductions(np.zeros(2), np.zeros(1, dtype=np.intp), 2, 0.5, 1.0, 1e9)
 
 

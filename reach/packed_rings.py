@@ -176,7 +176,9 @@ def trajectory_surrogates(
     xs, ys = point_columns(xy)
     out = np.empty(len(xs), dtype=np.float64)
     begins = np.asarray(starts, dtype=np.int64)
-    ends = np.append(begins[1:], len(xs) // group)
+    ends = np.empty_like(begins)
+    ends[:-1] = begins[1:]
+    ends[-1:] = len(xs) // group
     _surrogates(
         (*_arrays(packed), packed.boxes, packed.supports, DIRECTIONS),
         *frame(pose),

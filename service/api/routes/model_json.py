@@ -31,8 +31,11 @@ class ModelJSONResponse(Response):
         if isinstance(content, MultiCollisionCheckResponse) and any(
             _is_batch(r) for r in content.results
         ):
-            data = content.model_dump(mode="json", exclude={"results"})
-            data["results"] = [_batch_answer(r) for r in content.results]
+            # One dump of the whole answer but its batches' answers, added to each as they are.
+            batches = {"results": {"__all__": set(BATCH_FIELDS)}}
+            data = content.model_dump(mode="json", exclude=batches)
+            for result, answer in zip(data["results"], content.results, strict=True):
+                _add_batch(result, answer)
             return orjson.dumps(data)
         return content.model_dump_json().encode()
 
@@ -47,7 +50,11 @@ def _is_batch(answer: CollisionCheckResponse) -> bool:
 
 def _batch_answer(answer: CollisionCheckResponse) -> dict[str, Any]:
     """The answer as the model dumps it, its batch's answers as they are."""
-    data = answer.model_dump(mode="json", exclude=set(BATCH_FIELDS))
+    return _add_batch(answer.model_dump(mode="json", exclude=set(BATCH_FIELDS)), answer)
+
+
+def _add_batch(data: dict[str, Any], answer: CollisionCheckResponse) -> dict[str, Any]:
+    """``data`` (``answer`` dumped without its batch's answers) with them."""
     for key in BATCH_FIELDS:
         if getattr(answer, key) is not None:
             data[key] = getattr(answer, key)

@@ -102,6 +102,23 @@ def test_a_single_gaussian_is_the_papers_filter_bit_for_bit(seed: int, rule: str
         prior, prev_mean, prev_cov = state, mean, sym
 
 
+def test_a_state_keeps_its_predictions_first_step_and_one_with_every_step_reads_alike() -> None:
+    """The next action is scored against the last prediction's first step, so a state keeps that
+    step alone; a state stored with every step (written before) gives the same next state."""
+    rng = np.random.default_rng(3)
+    settings, overrides = Settings(), {}
+    mean, cov = _prediction(rng)
+    first, _ = _step(None, _request(1.0, mean, cov, None, False, rng), settings, overrides)
+    sym = 0.5 * (cov + cov.transpose(0, 2, 1))
+    assert first.prediction == {"dt": DT, "mean": mean[:1].tolist(), "cov": sym[:1].tolist()}
+    every = AgentState.from_dict(
+        {**first.to_dict(), "prediction": {"dt": DT, "mean": mean.tolist(), "cov": sym.tolist()}}
+    )
+    action = mean[0] + rng.normal(0.0, 2.0, 2)
+    later = _request(2.0, *_prediction(rng), action, False, rng)
+    assert _step(first, later, settings, overrides) == _step(every, later, settings, overrides)
+
+
 def test_several_modes_keep_their_set_and_one_row_of_bounds_each() -> None:
     rng = np.random.default_rng(3)
     settings = Settings()

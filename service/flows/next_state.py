@@ -17,8 +17,8 @@ bit for bit, against ``service.flows.confidence.update_belief`` and the paper's 
    (``service.flows.bounds``, paper, "Collision Set Update"), within its class's limits, and the
    bounds and the speed are checked against the class's ranges (one check, from the class); an
    agent whose modes fail either is refused with the error of its first such mode;
-4. the state stores the marginal belief over beta, the most probable mode's prediction and
-   bounds, and, for several modes, the joint belief and the set's modes (:class:`ModeSet`). The
+4. the state stores the marginal belief over beta, the first step of the most probable mode's
+   prediction (what the next action is scored against) and its bounds, and, for several modes, the joint belief and the set's modes (:class:`ModeSet`). The
    job of a state (``AgentState.set_bounds``) has one row of bounds per mode in the set; its set
    is their union (``reach.union``).
 """
@@ -464,10 +464,10 @@ def _assembled(
         heading=pose.heading,
         speed=pose.speed,
         belief=belief.to_dict(),
-        prediction={
+        prediction={  # its first step: what the next observation's action is scored against
             "dt": mixture.dt,
-            "mean": mixture.means[main].tolist(),
-            "cov": mixture.covs[main].tolist(),
+            "mean": mixture.means[main, :1].tolist(),
+            "cov": mixture.covs[main, :1].tolist(),
         },
         control_bounds=bounds[main],
         config=inputs.overrides,

@@ -39,7 +39,9 @@ class AgentState:
     speed: float
     #: The Bayes filter over beta (``service.flows.confidence.Belief.to_dict()``).
     belief: dict[str, Any]
-    #: The last prediction: ``{"dt": float, "mean": [[u1, u2], ...], "cov": [[[..], [..]], ...]}``.
+    #: The last prediction's first step (the one the next observed action is scored against; a
+    #: multi-modal agent's modes keep theirs in ``modes``): ``{"dt": float, "mean": [[u1, u2]],
+    #: "cov": [[[..], [..]]]}``. States written with every step are read alike.
     prediction: dict[str, Any]
     #: The eight control-bound columns in contract order (``reach.contract.BOUND_COLUMNS``).
     control_bounds: list[float]

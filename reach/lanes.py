@@ -61,6 +61,9 @@ VEHICLE_LANE_TYPES = ("VEHICLE", "BUS")
 HEADING_TOLERANCE = math.radians(30.0)
 #: Regions kept per map and margin (the latest used).
 REGIONS_KEPT = 256
+#: Up to this many lanes, the lanes holding a point are found by one pass over their bounding
+#: boxes (cheaper than a tree query's wrapping); past it, by the STRtree.
+SCAN_LANES = 4096
 
 
 def _resample(line: np.ndarray, n: int) -> np.ndarray:
@@ -194,10 +197,22 @@ class MarginIndex:
         self.grown = shapely.buffer(areas, margin, quad_segs=4) if margin > 0 else areas
         self.clipped = shapely.intersection(self.grown, drivable.grown)
         self.tree = shapely.STRtree(self.grown)
+        bounds = shapely.bounds(self.grown).reshape(-1, 4)
+        self._bounds = tuple(np.ascontiguousarray(bounds[:, k]) for k in range(4))
         self.strips = list(drivable.tiles[drivable.road_tiles :])
         self.indexed = drivable.indexed
         self._regions: OrderedDict[tuple[frozenset[int], bool], LaneRegion] = OrderedDict()
         self._lock = threading.Lock()
+
+    def holding(self, x: float, y: float) -> np.ndarray:
+        """The lanes (indices, increasing) whose area grown by the margin holds the point (x, y):
+        those whose bounding box holds it and that intersect it (the STRtree's ``intersects``
+        query, by one pass over the boxes up to ``SCAN_LANES`` lanes)."""
+        if len(self.grown) > SCAN_LANES:
+            return np.sort(self.tree.query(shapely.Point(x, y), predicate="intersects"))
+        x0, y0, x1, y1 = self._bounds
+        near = np.flatnonzero((x0 <= x) & (x1 >= x) & (y0 <= y) & (y1 >= y))
+        return near[shapely.intersects_xy(self.grown[near], x, y)] if len(near) else near
 
     def region(self, reached: frozenset[int], ids: Sequence[str], drivable: bool) -> LaneRegion:
         """The region of the lanes ``reached`` (indices), R ∩ L if ``drivable`` else L; built on
@@ -273,12 +288,12 @@ class LaneGraph:
     ) -> list[int]:
         """The start lanes of an agent at ``xy`` heading ``heading`` (see the module)."""
         x, y = float(xy[0]), float(xy[1])
-        found = index.tree.query(shapely.Point(x, y), predicate="intersects")
+        found = index.holding(x, y)
         of_types = self.of_types(lane_types)
         direction = self.segments.direction
         return [
             i
-            for i in sorted(found.tolist())
+            for i in found.tolist()
             if of_types[i] and _angle(direction(i, x, y), heading) <= tolerance
         ]
 

@@ -17,6 +17,7 @@ import pytest
 import shapely
 
 from models.rollout import sample_reference_schedules
+from reach import lanes as lanes_module
 from reach.frames import Pose
 from reach.lanes import DRIVABLE_AREA, REACHABLE_LANES, VEHICLE_LANE_TYPES, direction_at
 from reach.road_cut import CutSet, connected_to, lane_cut, padded_extent
@@ -198,6 +199,18 @@ def test_the_indexed_start_search_is_the_definition(road) -> None:  # noqa: F811
             starts += 1
             assert region.covers(x, y) == region.covers_xy([x], [y])[0]
     assert starts > 20  # enough poses in a lane of their heading
+
+
+def test_the_lanes_holding_a_point_are_found_alike_by_scan_and_tree(road, monkeypatch) -> None:  # noqa: F811
+    """Past ``SCAN_LANES`` the STRtree finds the lanes holding a point; below it one pass over
+    their boxes does: the same lanes."""
+    index = road.lane_graph.index(MARGIN, road.region(MARGIN))
+    x0, y0, x1, y1 = road.extent
+    points = np.random.default_rng(4).uniform((x0, y0), (x1, y1), (3000, 2)).tolist()
+    scanned = [index.holding(x, y).tolist() for x, y in points]
+    monkeypatch.setattr(lanes_module, "SCAN_LANES", 0)
+    assert [index.holding(x, y).tolist() for x, y in points] == scanned
+    assert sum(map(bool, scanned)) > 300
 
 
 def test_one_polygon_is_one_component() -> None:

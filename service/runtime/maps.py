@@ -19,8 +19,6 @@ from itertools import count
 from pathlib import Path
 from typing import Any
 
-import shapely
-
 from reach.lanelet2_map import road_map_from_osm
 from reach.lanes import (
     DRIVABLE_AREA,
@@ -248,7 +246,7 @@ class VersionRoad:
             return RoadProbe(True, None)
         graph = road.lane_graph
         index = graph.index(margin, road.region(margin))
-        found = index.tree.query(shapely.Point(x, y), predicate="intersects")
+        found = index.holding(x, y)
         lanes = found[graph.of_types(VEHICLE_LANE_TYPES)[found]].tolist()
         return RoadProbe(road.on_road(x, y, margin), frozenset(lanes))
 

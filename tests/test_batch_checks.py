@@ -747,3 +747,17 @@ def test_binary64_columns_read_as_the_standard_library_decodes_them(numbers: lis
 )
 def test_binary64_columns_refuse_what_is_not_padded_base64_of_float64s(text: str) -> None:
     assert read_binary64(text) is None
+
+
+def test_recent_checks_draw_a_packed_batchs_first_trajectory() -> None:
+    trajectories = [
+        [{"t": 0.1 * k, "x": 2.0 * k, "y": 1.0} for k in range(4)],
+        [{"t": 0.0, "x": 9.0, "y": 9.0}],
+    ]
+    request = CollisionCheckRequest.model_validate_json(
+        json.dumps({"packed_trajectories": packed(trajectories)})
+    )
+    recent = RecentChecks()
+    recent.record(request, [])
+    (drawn,) = recent.recent()
+    assert drawn["trajectory"] == [[p["t"], p["x"], p["y"]] for p in trajectories[0]]

@@ -214,6 +214,15 @@ class MarginIndex:
         near = np.flatnonzero((x0 <= x) & (x1 >= x) & (y0 <= y) & (y1 >= y))
         return near[shapely.intersects_xy(self.grown[near], x, y)] if len(near) else near
 
+    def meeting(self, box: tuple[float, ...]) -> np.ndarray:
+        """The lanes (indices, increasing) whose grown area's bounding box meets the box ``box``
+        (x0, y0, x1, y1): the STRtree's query of the box, by one pass over the boxes up to
+        ``SCAN_LANES`` lanes."""
+        if len(self.grown) > SCAN_LANES:
+            return np.sort(self.tree.query(shapely.box(*box)))
+        x0, y0, x1, y1 = self._bounds
+        return np.flatnonzero((x0 <= box[2]) & (x1 >= box[0]) & (y0 <= box[3]) & (y1 >= box[1]))
+
     def region(self, reached: frozenset[int], ids: Sequence[str], drivable: bool) -> LaneRegion:
         """The region of the lanes ``reached`` (indices), R ∩ L if ``drivable`` else L; built on
         first use and kept."""
@@ -306,7 +315,7 @@ class LaneGraph:
     ) -> frozenset[int]:
         """The start lanes and the lanes of ``lane_types`` whose grown area's bounding box meets
         ``box`` that follow them."""
-        met = index.tree.query(shapely.box(*box))
+        met = index.meeting(box)
         within = set(met[self.of_types(lane_types)[met]].tolist())
         reached = set(start)
         frontier = list(start)

@@ -201,16 +201,19 @@ def test_the_indexed_start_search_is_the_definition(road) -> None:  # noqa: F811
     assert starts > 20  # enough poses in a lane of their heading
 
 
-def test_the_lanes_holding_a_point_are_found_alike_by_scan_and_tree(road, monkeypatch) -> None:  # noqa: F811
-    """Past ``SCAN_LANES`` the STRtree finds the lanes holding a point; below it one pass over
-    their boxes does: the same lanes."""
+def test_lanes_near_a_point_or_box_are_found_alike_by_scan_and_tree(road, monkeypatch) -> None:  # noqa: F811
+    """Past ``SCAN_LANES`` the STRtree finds the lanes holding a point and those whose box meets
+    a box; below it one pass over their boxes does: the same lanes."""
     index = road.lane_graph.index(MARGIN, road.region(MARGIN))
     x0, y0, x1, y1 = road.extent
     points = np.random.default_rng(4).uniform((x0, y0), (x1, y1), (3000, 2)).tolist()
+    boxes = [(x - 20.0, y - 30.0, x + 40.0, y + 10.0) for x, y in points[:300]]
     scanned = [index.holding(x, y).tolist() for x, y in points]
+    met = [index.meeting(box).tolist() for box in boxes]
     monkeypatch.setattr(lanes_module, "SCAN_LANES", 0)
     assert [index.holding(x, y).tolist() for x, y in points] == scanned
-    assert sum(map(bool, scanned)) > 300
+    assert [index.meeting(box).tolist() for box in boxes] == met
+    assert sum(map(bool, scanned)) > 300 and sum(map(bool, met)) > 100
 
 
 def test_one_polygon_is_one_component() -> None:

@@ -1,4 +1,5 @@
-"""Process memory settings for numpy-heavy work, and the garbage collector's view of start-up.
+"""Process memory settings for numpy-heavy work, and the garbage collector's view of start-up
+and of the long-lived objects.
 
 An exact set allocates many numpy temporaries of 0.1-2 MB. glibc serves blocks above its mmap
 threshold with fresh ``mmap`` calls and gives freed heap tops back to the kernel, so every such
@@ -53,9 +54,20 @@ def keep_freed_memory() -> bool:
     return applied
 
 
+#: Collections of the middle generation between two full collections (CPython's default: 10).
+GEN1_COLLECTIONS_PER_FULL = 100
+
+
 def freeze_start_up_objects() -> None:
     """Move every object alive now (modules, schemas, the model, ...) out of the garbage
     collector's reach: a full collection would traverse them all, a pause in the middle of a
-    request; after this only objects made later are traversed."""
+    request; after this only objects made later are traversed. Then make full collections rarer
+    (:data:`GEN1_COLLECTIONS_PER_FULL`): a scene's long-lived objects (its agents' states, sets
+    and audited versions) are traversed by every full collection, a pause of the event loop that
+    grows with them and came several times a second at 10 Hz, while almost none of them ends
+    as cyclic garbage (reference counts free them); the young generations are collected as
+    before."""
     gc.collect()
     gc.freeze()
+    young, middle, _ = gc.get_threshold()
+    gc.set_threshold(young, middle, GEN1_COLLECTIONS_PER_FULL)

@@ -160,6 +160,46 @@ def test_a_check_colliding_only_off_the_road_is_clear_with_the_map(client, pair)
     assert by_agent["road-car"]["assumptions"] == BOTH
 
 
+def test_a_batch_is_answered_from_the_cut_set_as_single_checks_are(client, pair) -> None:
+    """Each trajectory of a batch has the verdict and least clearance of its single check, with
+    the map and without; entries or columns, points or footprints alike."""
+    point = pair["point"]
+    far = {"t": 1.0, "x": ON_ROAD["x"] + 150.0, "y": ON_ROAD["y"], "heading": 0.0}
+    trajectories = [
+        [{"t": 3.0, "x": point.x, "y": point.y, "heading": 0.0}],
+        [far],
+        [{"t": 2.0, "x": ON_ROAD["x"], "y": ON_ROAD["y"] + 3.0, "heading": 1.5}, {**far, "t": 2.5}],
+    ]
+    footprint = {"footprint": {"length": 2.0, "width": 1.0}}
+    for mode in ("tube", "time_indexed"):
+        for extra in ({}, {"answer_columns": True}, footprint):
+            for agent, labels in (("road-car", BOTH), ("plain-car", [])):
+                answer = _batch(client, agent, trajectories, mode=mode, **extra)
+                assert answer["assumptions"] == labels, (mode, agent)
+                rows = answer.get("trajectories") or [
+                    dict(zip(answer["trajectory_columns"], values, strict=True))
+                    for values in zip(*answer["trajectory_columns"].values(), strict=True)
+                ]
+                for trajectory, row in zip(trajectories, rows, strict=True):
+                    single = check(client, agent, trajectory, mode=mode, **footprint_of(extra))
+                    assert row["collision"] == single["collision"], (mode, agent, trajectory)
+                    assert row["min_clearance"] == pytest.approx(min(single["clearance"]))
+    plain = _batch(client, "plain-car", trajectories[:1])
+    cut = _batch(client, "road-car", trajectories[:1])
+    assert plain["trajectories"][0]["collision"] and not cut["trajectories"][0]["collision"]
+
+
+def footprint_of(extra: dict[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in extra.items() if k == "footprint"}
+
+
+def _batch(client: TestClient, agent_id: str, trajectories: list, **extra: Any) -> dict:
+    request = {"trajectories": trajectories, "deadline_ms": 10_000, **extra}
+    r = client.post(f"/v1/agents/{agent_id}/collision-check", json=request)
+    assert r.status_code == 200, r.text
+    return r.json()
+
+
 def test_a_clear_check_is_measured_on_the_uncut_set_and_labelled(client, pair) -> None:
     far = [{"t": 1.0, "x": ON_ROAD["x"] + 150.0, "y": ON_ROAD["y"]}]
     plain, cut = check(client, "plain-car", far), check(client, "road-car", far)

@@ -231,11 +231,11 @@ def _road_assumptions(
     road: _RoadCut,
 ) -> list[list[str]]:
     """Each agent's map assumptions, its distances measured to its cut set where they come near
-    (``service.flows.road.cut_near``) while the deadline leaves time to answer them all; none
-    for a batch.
+    (``service.flows.road.cut_near``) while the deadline leaves time to answer them all. A
+    batch's distances may be lower bounds away from its trajectories' least and first colliding
+    points (``reach.packed_rings``): a point near by its bound is measured to the cut set, one
+    that is not is farther from the uncut set, and so from the cut one, than the margin.
     The time it takes goes into ``road.timeline.cut_s``."""
-    if points.batch:
-        return [[] for _ in states]
     start = time.perf_counter()
     until = (
         road.timeline.arrival

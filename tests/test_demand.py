@@ -80,3 +80,40 @@ def test_a_check_within_the_margin_demands_and_one_beyond_it_does_not(
     while clearance_at(y_inside) >= margin - 0.5:
         y_inside -= 0.25
     assert services.demand.wants("edge")
+
+
+def test_an_answer_near_a_set_demands_it_whichever_set_answered() -> None:
+    """A trajectory clear of an agent's conservative set by less than the margin is likely to
+    meet it at the next check: the agent is demanded then (its clearance is a lower bound of the
+    exact set's), as for an exact answer below the margin; one clear by more is not."""
+    import numpy as np
+
+    from service.flows.checks import _note_demand
+    from service.runtime.demand import ExactDemand
+    from service.runtime.metrics import Metrics
+    from service.wire.schemas import CollisionCheckResponse
+
+    margin = Settings().exact_demand_margin_m
+
+    def answer(agent_id: str, conservative: bool, collision: bool) -> CollisionCheckResponse:
+        return CollisionCheckResponse.model_construct(
+            agent_id=agent_id, conservative=conservative, collision=collision
+        )
+
+    class _Services:
+        settings = Settings()
+        metrics = Metrics()
+        demand = ExactDemand(hold_s=60.0, size=16)
+
+    results = [
+        answer("clear-near", True, False),  # decision-exact, just clear of the conservative set
+        answer("clear-far", True, False),
+        answer("exact-near", False, False),
+        answer("exact-far", False, False),
+        answer("meets", True, True),  # conservative: its exact set decides
+    ]
+    least = np.array([margin - 0.5, margin + 0.5, margin - 0.5, margin + 0.5, -1.0])
+    services = _Services()
+    _note_demand(services, results, least)  # type: ignore[arg-type]
+    wanted = {r.agent_id for r in results if services.demand.wants(r.agent_id)}
+    assert wanted == {"clear-near", "exact-near", "meets"}

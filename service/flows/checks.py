@@ -597,7 +597,9 @@ def _note_demand(
 ) -> None:
     """Count the answers by verdict, and demand the exact sets of the agents whose answer they
     would change or nearly (``service.runtime.demand``): a conservative verdict, or a least
-    clearance from the exact set below ``exact_demand_margin_m``."""
+    clearance below ``exact_demand_margin_m``, from the exact set or (a lower bound of the
+    exact set's) from the conservative one: a trajectory that passes that close to an agent's
+    set is likely to meet it at the next check, and its exact set is then under way."""
     verdicts = Counter(r.verdict for r in results)
     for verdict, count in verdicts.items():
         services.metrics.check_verdicts.labels(verdict).inc(count)
@@ -605,7 +607,7 @@ def _note_demand(
     near = [
         r.agent_id
         for r, clearance in zip(results, least.tolist(), strict=True)
-        if r.verdict == "conservative" or (not r.conservative and clearance < margin)
+        if r.verdict == "conservative" or clearance < margin
     ]
     if near:
         services.demand.note(near)

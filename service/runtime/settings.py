@@ -100,7 +100,8 @@ class Settings(BaseSettings):
     #: Exact sets start first for agents a check came near within this many seconds
     #: (``service.runtime.demand``; 0: newest first, whoever's) ...
     exact_demand_s: float = Field(1.0, ge=0.0)
-    #: ... near: a conservative verdict, or a clearance from the exact set below this (metres).
+    #: ... near: a conservative verdict, or a clearance below this (metres) from the exact set
+    #: or from the conservative one (a lower bound of the exact set's).
     exact_demand_margin_m: float = Field(2.0, ge=0.0)
     #: How long contours and the stateless endpoint wait for an exact set before going conservative.
     exact_timeout_s: float = Field(5.0, gt=0.0)

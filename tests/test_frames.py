@@ -478,3 +478,42 @@ def test_demanded_agents_are_built_first_and_their_sets_start_before_the_frame_i
     assert events[2] == ("submit", sorted(ids))
     stored = asyncio.run(services.store.get_many(sorted(demanded)))
     assert sorted(keys[0], key=str) == sorted((services.job_for(s).key for s in stored), key=str)
+
+
+def test_a_check_arriving_while_a_frame_is_stored_goes_before_its_answers(
+    wide: TestClient, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The frame's last stretch is split too: a check that arrives while the frame's versions
+    are stored and queued is answered before the frame's answers are built."""
+    from service.flows import agents, checks
+    from service.wire.schemas import MultiCollisionCheckRequest, ObservationRequest
+
+    services = wide.app.state.services
+    observations = [
+        (f"late-{i}", ObservationRequest.model_validate(observation(40.0, x=4.0 * i)))
+        for i in range(3)
+    ]
+    check = MultiCollisionCheckRequest.model_validate(
+        {"trajectory": [{"t": 40.5, "x": 0.0, "y": 30.0}], "mode": "time_indexed"}
+    )
+    order: list[str] = []
+    arriving: list[asyncio.Task] = []
+    real_submitted = agents._submitted
+
+    async def a_planner() -> None:
+        await checks.check_agents_at_once(services, check, time.perf_counter())
+        order.append("check")
+
+    def submitted_as_a_check_arrives(*args):  # type: ignore[no-untyped-def]
+        arriving.append(asyncio.get_running_loop().create_task(a_planner()))
+        order.append("stored")
+        return real_submitted(*args)
+
+    async def frame_and_check() -> None:
+        await agents.observe_many(services, observations)
+        order.append("frame")
+        await arriving[0]
+
+    monkeypatch.setattr(agents, "_submitted", submitted_as_a_check_arrives)
+    asyncio.run(frame_and_check())
+    assert order == ["stored", "check", "frame"]

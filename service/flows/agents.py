@@ -170,9 +170,12 @@ async def observe_many(
     # rebuilt by the store's update gets its own below).
     jobs = {id(r[0]): services.job_for(r[0]) for r in built if not isinstance(r, APIError)}
     building = start_conservative(services, list(jobs.values()))  # type: ignore[index]
-    await priority.observation_turn(priority.max_hold_s - held)
+    held += await priority.observation_turn(priority.max_hold_s - held)
     stored = await services.store.update_many(updates)
     _submitted(services, stored_entries, stored, results, (building, jobs))
+    # The stored versions' sets are queued and their conservative sets cached: the checks that
+    # arrived go before the answers are built.
+    await priority.observation_turn(priority.max_hold_s - held)
     return results  # type: ignore[return-value]
 
 

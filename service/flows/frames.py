@@ -18,6 +18,7 @@ from pydantic import TypeAdapter, ValidationError
 from service.flows import agents
 from service.runtime.services import Services
 from service.wire.errors import APIError, validation_payload
+from service.wire.frame_body import TypedFrame
 from service.wire.limits import check_length
 from service.wire.schemas import (
     AgentId,
@@ -74,8 +75,34 @@ def _entries(
 ) -> list[tuple[int, str, ObservationRequest]]:
     """The frame's valid entries (index, agent id, observation), each validated as its own
     observation would be, an agent's second valid entry refused; the others' rejections into
-    ``results``. The observations are validated in one call, and entry by entry (to name what is
-    wrong) only when one fails."""
+    ``results``. A frame read typed (:class:`TypedFrame`: every entry valid) is validated
+    already; otherwise the observations are validated in one call, and entry by entry (to name
+    what is wrong) only when one fails."""
+    if isinstance(request, TypedFrame):
+        observations = request.observations()
+        checked: list[tuple[int, str, ObservationRequest | APIError]] = [
+            (index, agent_id, observation)
+            for index, (agent_id, observation) in enumerate(observations)
+        ]
+    else:
+        checked = _checked(request, results)
+    valid, seen = [], set()
+    for index, agent_id, observation in checked:
+        if not isinstance(observation, APIError) and agent_id in seen:
+            observation = APIError(422, "agent appears twice in the frame", field="agent_id")
+        if isinstance(observation, APIError):
+            results[index] = _rejection(index, agent_id, observation)
+            continue
+        seen.add(agent_id)
+        valid.append((index, agent_id, observation))
+    return valid
+
+
+def _checked(
+    request: FrameRequest, results: list[ObservationResponse | FrameRejection | None]
+) -> list[tuple[int, str, ObservationRequest | APIError]]:
+    """Each entry with a valid agent id and no timestamp of its own: its observation, or the
+    422 naming what is wrong in it (the others' rejections into ``results``)."""
     bodies: list[tuple[int, str, dict[str, Any]]] = []
     for index, raw in enumerate(request.agents):
         try:
@@ -89,16 +116,7 @@ def _entries(
         )
     except ValidationError:
         observations = [_observation_or_error(body) for _, _, body in bodies]
-    valid, seen = [], set()
-    for (index, agent_id, _), observation in zip(bodies, observations, strict=True):
-        if not isinstance(observation, APIError) and agent_id in seen:
-            observation = APIError(422, "agent appears twice in the frame", field="agent_id")
-        if isinstance(observation, APIError):
-            results[index] = _rejection(index, agent_id, observation)
-            continue
-        seen.add(agent_id)
-        valid.append((index, agent_id, observation))
-    return valid
+    return [(i, a, o) for (i, a, _), o in zip(bodies, observations, strict=True)]
 
 
 async def apply_frame(services: Services, request: FrameRequest) -> FrameResponse:

@@ -10,11 +10,12 @@ from service.api.routes.json_body import body_openapi, json_body
 from service.api.routes.model_json import ModelJSONResponse
 from service.api.routes.params import ServicesDep
 from service.flows import frames
+from service.wire.frame_body import parse_frame
 from service.wire.schemas import FrameRequest, FrameResponse
 
 router = APIRouter(prefix="/v1", tags=["agents"])
 
-FrameBody = Annotated[FrameRequest, json_body(FrameRequest)]
+FrameBody = Annotated[FrameRequest, json_body(FrameRequest, parse_frame)]
 
 
 @router.post("/frames", response_model=FrameResponse, openapi_extra=body_openapi(FrameRequest))

@@ -76,9 +76,14 @@ def disc_cover(
 
 def disc_centres(xy: np.ndarray, heading: np.ndarray, cover: DiscCover) -> np.ndarray:
     """The cover's disc centres ``[N * n, 2]`` for reference points ``xy [N, 2]`` with headings
-    ``[N]``: the n discs of point k at rows ``k * n .. k * n + n - 1``."""
-    direction = np.stack([np.cos(heading), np.sin(heading)], axis=1)
-    centres = xy[:, None, :] + cover.offsets[None, :, None] * direction[:, None, :]
+    ``[N]``: the n discs of point k at rows ``k * n .. k * n + n - 1``, each ``xy + offset *
+    (cos, sin)``."""
+    cos, sin = np.cos(heading), np.sin(heading)
+    centres = np.empty((len(cos), cover.count, 2))
+    # Disc by disc over every point: numpy's broadcasting over a last axis of two is its slow case.
+    for k, offset in enumerate(cover.offsets.tolist()):
+        np.add(xy[:, 0], offset * cos, out=centres[:, k, 0])
+        np.add(xy[:, 1], offset * sin, out=centres[:, k, 1])
     return centres.reshape(-1, 2)
 
 

@@ -761,3 +761,15 @@ def test_recent_checks_draw_a_packed_batchs_first_trajectory() -> None:
     recent.record(request, [])
     (drawn,) = recent.recent()
     assert drawn["trajectory"] == [[p["t"], p["x"], p["y"]] for p in trajectories[0]]
+
+
+def test_disc_centres_are_each_point_plus_its_offsets_along_its_heading() -> None:
+    """Bit for bit the broadcast ``xy + offset * (cos, sin)``, for a few covers."""
+    rng = np.random.default_rng(13)
+    xy = rng.uniform(-1e4, 1e4, size=(500, 2))
+    heading = rng.uniform(-30.0, 30.0, size=500)
+    direction = np.stack([np.cos(heading), np.sin(heading)], axis=1)
+    for length, width, ahead in ((4.8, 1.9, 1.4), (1.0, 1.0, 0.0), (12.0, 2.5, -3.0)):
+        cover = disc_cover(length, width, ahead)
+        expected = xy[:, None, :] + cover.offsets[None, :, None] * direction[:, None, :]
+        assert np.array_equal(disc_centres(xy, heading, cover), expected.reshape(-1, 2))

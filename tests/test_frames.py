@@ -483,15 +483,16 @@ def test_demanded_agents_are_built_first_and_their_sets_start_before_the_frame_i
 def test_a_check_arriving_while_a_frame_is_stored_goes_before_its_answers(
     wide: TestClient, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """The frame's last stretch is split too: a check that arrives while the frame's versions
-    are stored and queued is answered before the frame's answers are built."""
+    """A frame's last stretch is split too: a check that arrives while the frame's versions are
+    stored and queued is answered before the answers of a frame of more than
+    ``STATES_PER_TURN`` agents are built."""
     from service.flows import agents, checks
     from service.wire.schemas import MultiCollisionCheckRequest, ObservationRequest
 
     services = wide.app.state.services
     observations = [
         (f"late-{i}", ObservationRequest.model_validate(observation(40.0, x=4.0 * i)))
-        for i in range(3)
+        for i in range(agents.STATES_PER_TURN + 1)
     ]
     check = MultiCollisionCheckRequest.model_validate(
         {"trajectory": [{"t": 40.5, "x": 0.0, "y": 30.0}], "mode": "time_indexed"}

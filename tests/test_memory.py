@@ -14,7 +14,8 @@ def test_start_up_freezes_what_is_alive_and_makes_full_collections_rarer() -> No
         alive = object.__new__(type("Alive", (), {}))
         freeze_start_up_objects()
         young, middle, full = gc.get_threshold()
-        assert (young, middle) == before[:2] and full == GEN1_COLLECTIONS_PER_FULL > before[2]
+        # CPython's default is 10 (a service started earlier in this process may have set it).
+        assert (young, middle) == before[:2] and full == GEN1_COLLECTIONS_PER_FULL > 10
         assert gc.get_freeze_count() > 0 and not any(o is alive for o in gc.get_objects())
     finally:
         gc.unfreeze()

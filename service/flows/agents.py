@@ -155,8 +155,32 @@ async def observe_many(
         states = next_states([e.previous for e in part], inputs, settings, engine)  # type: ignore[arg-type]
         _start_demanded(services, part, states)
         built += states
-    updates: list[Update] = []
-    stored_entries = []
+    stored_entries, updates = _updates(services, entries, built, results)
+    # The new versions' conservative sets are under way while they are stored (a state
+    # rebuilt by the store's update gets its own below).
+    jobs = {id(r[0]): services.job_for(r[0]) for r in built if not isinstance(r, APIError)}
+    building = start_conservative(services, list(jobs.values()))  # type: ignore[index]
+    held += await priority.observation_turn(priority.max_hold_s - held)
+    stored = await services.store.update_many(updates)
+    audited = _submitted(services, stored_entries, stored, results, (building, jobs))
+    if len(entries) > STATES_PER_TURN:
+        # The stored versions' sets are queued and their conservative sets cached: the checks
+        # that arrived go before a frame's answers are built.
+        await priority.observation_turn(priority.max_hold_s - held)
+    if audited:  # scored once the answers are on their way
+        asyncio.get_running_loop().call_soon(_audit_later, services, audited)
+    return results  # type: ignore[return-value]
+
+
+def _updates(
+    services: Services,
+    entries: list[_Entry],
+    built: list[tuple[AgentState, Belief] | APIError],
+    results: list[Applied | APIError | None],
+) -> tuple[list[_Entry], list[Update]]:
+    """The entries whose next states were built and the store's update of each (the refused
+    ones' errors into ``results``)."""
+    stored_entries, updates = [], []
     for entry, result in zip(entries, built, strict=True):
         if isinstance(result, APIError):
             results[entry.index] = result
@@ -166,17 +190,7 @@ async def observe_many(
             (entry.agent_id, _apply(services, entry, result[0]), entry.request.timestamp)
         )
         stored_entries.append(entry)
-    # The new versions' conservative sets are under way while they are stored (a state
-    # rebuilt by the store's update gets its own below).
-    jobs = {id(r[0]): services.job_for(r[0]) for r in built if not isinstance(r, APIError)}
-    building = start_conservative(services, list(jobs.values()))  # type: ignore[index]
-    held += await priority.observation_turn(priority.max_hold_s - held)
-    stored = await services.store.update_many(updates)
-    _submitted(services, stored_entries, stored, results, (building, jobs))
-    # The stored versions' sets are queued and their conservative sets cached: the checks that
-    # arrived go before the answers are built.
-    await priority.observation_turn(priority.max_hold_s - held)
-    return results  # type: ignore[return-value]
+    return stored_entries, updates
 
 
 def _demanded_first(services: Services, entries: list[_Entry]) -> list[_Entry]:
@@ -273,11 +287,12 @@ def _submitted(
     stored: list[AgentState | APIError],
     results: list[Applied | APIError | None],
     first: tuple[Callable[[], list[FRTSet]], dict[int, FRTJob]],
-) -> None:
+) -> list[tuple[str, float, float, float]]:
     """The stored versions' exact sets submitted, their conservative sets built and recorded for
-    the audit. ``first``: what finishes the conservative sets of the states first built (checks
-    finding the exact set late look them up; the audit keeps them), and those states' jobs by
-    ``id`` (a stored state is mostly the one first built)."""
+    the audit; the positions to audit (:func:`_audit_later`). ``first``: what finishes the
+    conservative sets of the states first built (checks finding the exact set late look them
+    up; the audit keeps them), and those states' jobs by ``id`` (a stored state is mostly the one
+    first built)."""
     building, jobs = first
     applied = []
     for entry, state in zip(entries, stored, strict=True):
@@ -297,8 +312,7 @@ def _submitted(
         if services.settings.audit:
             later += _record_for_audit(services, entry, state, job.key, frt)
         results[entry.index] = Applied(state, job, entry.built[-1])
-    if later:  # scored once the answers are on their way
-        asyncio.get_running_loop().call_soon(_audit_later, services, later)
+    return later
 
 
 def observation_response(

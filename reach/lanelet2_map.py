@@ -30,7 +30,21 @@ need are reproduced here:
 * **the drivable area** D: the union of the polygons of the lanelets that are not for
   pedestrians alone, and of the ``type=multipolygon`` areas whose subtype is one of
   ``DRIVABLE_AREA_SUBTYPES`` (outer ways joined into rings by their end nodes, inner rings cut
-  out).
+  out);
+* **speed limits** (m/s, per lanelet, both ways of a two-way one; None where not given): the
+  highest of the speed limits the lanelet references (its ``regulatory_element`` relation
+  members tagged ``subtype=speed_limit``, Lanelet2's ``SpeedLimit``), each read as
+  Lanelet2's ``TrafficSign::type`` reads it: its first ``refers`` sign way's ``subtype``, else its
+  ``sign_type`` tag, else its ``speed_limit`` tag. Without one, the highest of the lanelet's
+  ``speed_limit`` and ``speed_limit:vehicle*`` tags (Lanelet2's tag and its vehicle overrides;
+  Autoware's maps carry the tag), unless ``speed_limit_mandatory=no`` (a recommendation: None).
+  The highest, not Lanelet2's first, and ``ref_line``/``cancel_line`` are not read: a limit that
+  holds on part of a lanelet may be the one that holds there. Values (:func:`speed_value`):
+  a number of km/h (``50``), or a number and a unit, km/h, kmh, mph, m/s, mps (``50 km/h``,
+  ``30 mph``, ``13.9 m/s``: Lanelet2's ``Attribute::asVelocity`` units, any case), or the German
+  sign ``de274-<n>`` (n km/h); above 0 and at most 500 km/h. Anything else is refused naming the
+  tag (``relation.7.tag.sign_type``), and so is a referenced element that is not in the file or a
+  speed limit with no value.
 
 Bounded like an archive's points: the bytes by the caller, XML elements by ``MAX_ELEMENTS``,
 nodes and the node references of ways by ``max_points`` each, ways by ``MAX_WAYS``, relations by
@@ -42,6 +56,7 @@ from __future__ import annotations
 
 import io
 import math
+import re
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -76,6 +91,15 @@ PEDESTRIAN_TYPES = ("PEDESTRIAN", "NONE")
 DRIVABLE_AREA_SUBTYPES = ("road", "highway", "parking", "freespace", "bus_lane", "bicycle_lane")
 #: The suffix of the reverse lane of a two-way lanelet.
 REVERSE = ":reverse"
+#: Speed units read, in m/s per unit (Lanelet2's ``Attribute::asVelocity`` units); a number
+#: without a unit is km/h, as in Lanelet2 and Autoware.
+SPEED_UNITS = {"km/h": 1.0 / 3.6, "kmh": 1.0 / 3.6, "mph": 0.44704, "m/s": 1.0, "mps": 1.0}
+#: A speed limit is a positive number (a decimal point allowed), optionally followed by a unit.
+SPEED_PATTERN = re.compile(r"([0-9]+(?:\.[0-9]*)?|\.[0-9]+)\s*([a-z/]*)")
+#: The German speed-limit sign ``de274-<n>``: n km/h (as Lanelet2's German traffic rules read it).
+SIGN_PATTERN = re.compile(r"de274-([0-9]+)")
+#: Speed limits above this (m/s, 500 km/h) are refused.
+MAX_SPEED_LIMIT = 500.0 / 3.6
 
 
 @dataclass
@@ -257,6 +281,7 @@ class _Lanelet:
     left_key: tuple[int, bool]
     right_key: tuple[int, bool]
     centerline: np.ndarray | None
+    speed_limit: float | None = None
 
     def reversed(self) -> _Lanelet:
         """The lanelet driven the other way: bounds swapped and reversed."""
@@ -264,7 +289,7 @@ class _Lanelet:
             self.id + REVERSE, self.lane_type, self.tags, self.right_ids[::-1],
             self.left_ids[::-1], self.right[::-1], self.left[::-1],
             (self.right_key[0], not self.right_key[1]), (self.left_key[0], not self.left_key[1]),
-            None if self.centerline is None else self.centerline[::-1],
+            None if self.centerline is None else self.centerline[::-1], self.speed_limit,
         )  # fmt: skip
 
 
@@ -317,7 +342,75 @@ def _lanelet(osm: OsmFile, points: _Points, key: int, element: _Element) -> _Lan
         if np.hypot(*(centerline[-1] - start)) < np.hypot(*(centerline[0] - start)):
             centerline = centerline[::-1]
     return _Lanelet(str(key), lane_type(element.tags), element.tags, left_ids, right_ids, left,
-                    right, (ways["left"], flip_left), (ways["right"], flip_right), centerline)  # fmt: skip
+                    right, (ways["left"], flip_left), (ways["right"], flip_right), centerline,
+                    _speed_limit(osm, key, element))  # fmt: skip
+
+
+def speed_value(text: str, field_name: str) -> float:
+    """A speed limit's value in m/s (see the module): ``50`` (km/h), ``50 km/h``, ``30 mph``,
+    ``13.9 m/s`` and the other units of ``SPEED_UNITS`` (any case, spaces before the unit
+    allowed), or the sign ``de274-<n>``; anything else is refused naming ``field_name``."""
+    value = text.strip().lower()
+    sign = SIGN_PATTERN.fullmatch(value)
+    found = SPEED_PATTERN.fullmatch(value)
+    if sign is not None:
+        speed = float(sign.group(1)) / 3.6
+    elif found is not None and (found.group(2) or "km/h") in SPEED_UNITS:
+        speed = float(found.group(1)) * SPEED_UNITS[found.group(2) or "km/h"]
+    else:
+        units = ", ".join(SPEED_UNITS)
+        raise MapFormatError(
+            field_name, f"must be a speed (a number of km/h, or with a unit: {units}), got {text!r}"
+        )
+    if not 0.0 < speed <= MAX_SPEED_LIMIT:
+        raise MapFormatError(field_name, f"must be above 0 and at most 500 km/h, got {text!r}")
+    return speed
+
+
+def _sign_limit(osm: OsmFile, key: int, element: _Element) -> float:
+    """The limit (m/s) of a ``speed_limit`` regulatory element: its first ``refers`` sign's
+    ``subtype`` where it has one (as Lanelet2's ``TrafficSign::type``), else its ``sign_type``
+    tag, else its ``speed_limit`` tag."""
+    where = f"relation.{key}"
+    signs = [ref for kind, ref, role in element.members if kind == "way" and role == "refers"]
+    if signs:
+        sign = osm.ways.get(signs[0])
+        if sign is None:
+            raise MapFormatError(f"{where}.member.refers", f"way {signs[0]} not found")
+        if "subtype" in sign.tags:
+            return speed_value(sign.tags["subtype"], f"way.{signs[0]}.tag.subtype")
+    for name in ("sign_type", "speed_limit"):
+        if name in element.tags:
+            return speed_value(element.tags[name], f"{where}.tag.{name}")
+    raise MapFormatError(
+        where, "a speed limit needs a refers sign's subtype, sign_type or speed_limit"
+    )
+
+
+def _speed_limit(osm: OsmFile, key: int, element: _Element) -> float | None:
+    """A lanelet's speed limit (m/s; see the module): the highest of the ``speed_limit``
+    regulatory elements it references, else the highest of its ``speed_limit`` and
+    ``speed_limit:vehicle*`` tags (none when ``speed_limit_mandatory=no``), else None."""
+    where = f"relation.{key}"
+    limits = []
+    for kind, ref, role in element.members:
+        if role != "regulatory_element" or kind != "relation":
+            continue
+        rule = osm.relations.get(ref)
+        if rule is None:
+            raise MapFormatError(f"{where}.member.regulatory_element", f"relation {ref} not found")
+        if rule.tags.get("subtype") == "speed_limit":
+            limits.append(_sign_limit(osm, ref, rule))
+    if limits:
+        return max(limits)
+    if element.tags.get("speed_limit_mandatory") == "no":
+        return None
+    tags = [
+        speed_value(v, f"{where}.tag.{k}")
+        for k, v in element.tags.items()
+        if k == "speed_limit" or k.startswith("speed_limit:vehicle")
+    ]
+    return max(tags) if tags else None
 
 
 def _two_way(tags: dict[str, str]) -> bool:
@@ -357,6 +450,7 @@ def _lanes(directed: list[_Lanelet]) -> list[Lane]:
             predecessors=tuple(ends.get(ll.id, [])),
             left_neighbor=neighbour(ll, by_right.get(ll.left_key, [])),
             right_neighbor=neighbour(ll, by_left.get(ll.right_key, [])),
+            speed_limit=ll.speed_limit,
         )
         for ll in directed
     ]

@@ -263,6 +263,11 @@ class LaneGraph:
                     nexts.append(j)
             self.follow.append(tuple(dict.fromkeys(nexts)))
         self.segments = _Segments(self.lines)
+        #: Each lane's speed limit (m/s), NaN where the map gives none.
+        self.limits = np.array(
+            [math.nan if lane.speed_limit is None else lane.speed_limit for lane in lanes],
+            dtype=np.float64,
+        )
         self._margins: dict[float, MarginIndex] = {}
         self._type_masks: dict[frozenset[str], np.ndarray] = {}
         self._lock = threading.Lock()
@@ -326,6 +331,29 @@ class LaneGraph:
                     reached.add(j)
                     frontier.append(j)
         return frozenset(reached)
+
+    def speed_cap(
+        self,
+        index: MarginIndex,
+        pose: Any,
+        box: tuple[float, ...],
+        factor: float,
+        lane_types: Iterable[str] = VEHICLE_LANE_TYPES,
+        tolerance: float = HEADING_TOLERANCE,
+    ) -> float | None:
+        """v_cap of the ``speed_limit`` assumption (``reach.speed_limit``): ``factor`` × the
+        highest speed limit among the lanes an agent at ``pose`` reaches within ``box`` (the
+        map's frame); None where the box reaches past the map's extent, no start lane holds the
+        agent or a lane reached has no limit."""
+        if not covers_box(self.extent, box):
+            return None
+        start = self.start(index, (pose.x, pose.y), pose.heading, lane_types, tolerance)
+        if not start:
+            return None
+        limits = self.limits[sorted(self.reachable(index, start, box, lane_types))]
+        if np.isnan(limits).any():
+            return None
+        return factor * float(limits.max())
 
     def region(
         self,

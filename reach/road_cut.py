@@ -23,6 +23,11 @@ The same cut holds for any region a trajectory respecting an assumption keeps it
 holding it (``reach.lanes``), and answers None where that assumption does not apply (no lane of
 its direction holds the human): the caller serves the set cut to R alone, or uncut off R.
 
+The assumption ``speed_limit`` (``reach.speed_limit``) cuts each tube j to a disc of radius
+ρ(s_j) about the observed position, alone or with a region (:func:`assumption_cut`,
+``CutSet(inner, region, discs=...)``): a trajectory keeping both stays in region ∩ disc_j over
+[0, s_j], so the components of tube_j ∩ region ∩ disc_j meeting the start hold its positions.
+
 R is read once per set, in the human frame, around the bounding box of the inner set's whole
 horizon (its outer bound's boxes where it has them); a geometry reaching past that box rebuilds it
 around both, so nothing is cut for want of map.
@@ -37,12 +42,30 @@ import numpy as np
 import shapely
 from shapely.geometry.base import BaseGeometry, BaseMultipartGeometry
 
-from reach.frames import covers_box
-from reach.lanes import DRIVABLE_AREA, HEADING_TOLERANCE, VEHICLE_LANE_TYPES, LaneRegion
+from reach.contract import INITIAL_SET, U2_LIMIT
+from reach.frames import Pose, covers_box
+from reach.lanes import (
+    DRIVABLE_AREA,
+    HEADING_TOLERANCE,
+    REACHABLE_LANES,
+    VEHICLE_LANE_TYPES,
+    LaneRegion,
+)
 from reach.road_map import DrivableRegion, RoadMap, cut_to, region_in_frame, world_box
 from reach.sets import BoxTubeSet, FRTSet
+from reach.speed_limit import DEFAULT_FACTOR, SPEED_LIMIT, ReachDiscs, reach_radii
 
-__all__ = ["DRIVABLE_AREA", "CutSet", "connected_to", "extent", "lane_cut"]
+__all__ = [
+    "DRIVABLE_AREA",
+    "SPEED_LIMIT",
+    "CutSet",
+    "assumption_cut",
+    "connected_to",
+    "extent",
+    "lane_cut",
+    "observation_box",
+    "speed_discs",
+]
 
 #: Lower-dimensional parts of a cut (where a set and R only touch) are kept grown by this (m).
 THIN_PART_M = 1e-6
@@ -86,6 +109,72 @@ def lane_cut(
     return None if region is None else CutSet(inner, region, box=box)
 
 
+def speed_discs(
+    inner: FRTSet,
+    road: RoadMap,
+    margin: float,
+    speed: tuple[float, np.ndarray],
+    factor: float = DEFAULT_FACTOR,
+    box: tuple[float, float, float, float] | None = None,
+) -> ReachDiscs | None:
+    """The discs of the ``speed_limit`` assumption (``reach.speed_limit``) for ``inner``, set of
+    a car observed at speed v_start under acceleration bounds ``bounds`` (``speed`` = (v_start,
+    bounds)): v_cap from the lanes it reaches within the box its region is read around (``box``,
+    :func:`padded_extent` of ``inner`` unless given); None where there is no v_cap or v_start
+    exceeds it (the car breaks the assumption already)."""
+    v_start, bounds = speed
+    box = padded_extent(inner) if box is None else box
+    v_cap = road.speed_cap(inner.pose, world_box(inner.pose, box), margin, factor)
+    if v_cap is None or v_start > v_cap:
+        return None
+    radii = reach_radii(v_start, bounds, v_cap, inner.slice_dt, inner.n_slices, inner.horizon_s)
+    return ReachDiscs(v_cap, radii)
+
+
+def observation_box(
+    pose: Pose, v_start: float, horizon: float, accel_max: float = U2_LIMIT
+) -> tuple[float, float, float, float]:
+    """A map-frame box holding the box every set of a car observed at ``pose`` and speed
+    ``v_start`` is read around (:func:`padded_extent`), whatever its acceleration bounds within
+    ±``accel_max``: the outer bound's speed is at most v_start + e_v + accel_max·t (one grid
+    step more, at most accel_max·horizon/480 m/s), so its boxes lie within
+    r₀ + (v_start + e_v)·T + accel_max·T²/2 of the position, plus 1 m for the grid and
+    ``REGION_PAD_M``. For testing ``speed_limit`` at an observation, before the set is built."""
+    m, t = INITIAL_SET, horizon
+    half = m.radius_m + (v_start + m.speed_margin_mps) * t + accel_max * t * t / 2.0
+    half += 1.0 + REGION_PAD_M
+    return world_box(pose, (-half, -half, half, half))
+
+
+def assumption_cut(
+    inner: FRTSet,
+    road: RoadMap,
+    margin: float,
+    assumptions: tuple[str, ...],
+    speed: tuple[float, np.ndarray] | None = None,
+    factor: float = DEFAULT_FACTOR,
+) -> CutSet | None:
+    """``inner`` cut by the map ``assumptions`` that apply to it: the region R for
+    ``drivable_area``, R ∩ L with ``reachable_lanes`` too, L for ``reachable_lanes`` alone (R
+    alone, or nothing, where the lanes do not apply: :func:`lane_cut`), with the discs of
+    ``speed_limit`` where ``speed`` (v_start, bounds) is given and they apply
+    (:func:`speed_discs`); None where nothing applies. The set lists what cut it."""
+    box = padded_extent(inner)
+    drivable = DRIVABLE_AREA in assumptions
+    region: DrivableRegion | LaneRegion | None = None
+    if REACHABLE_LANES in assumptions:
+        world = world_box(inner.pose, box)
+        region = road.lane_region(inner.pose, world, margin, drivable)
+    if region is None and drivable:
+        region = road.region(margin)
+    discs = None
+    if SPEED_LIMIT in assumptions and speed is not None:
+        discs = speed_discs(inner, road, margin, speed, factor, box)
+    if region is None and discs is None:
+        return None
+    return CutSet(inner, region, box=box, discs=discs)
+
+
 def _boxes(frt: Any) -> np.ndarray | None:
     """[M, 4] boxes (x_lo, x_hi, y_lo, y_hi) whose union holds the set, if it has them."""
     if isinstance(frt, BoxTubeSet):
@@ -106,25 +195,31 @@ class CutSet(FRTSet):
     each drawn on first use and kept. Clearances measure to the cut tubes.
 
     The region is a map's R for ``margin`` (``road`` a ``RoadMap``) or any region read the same
-    way (``road`` a ``DrivableRegion`` or ``reach.lanes.LaneRegion``, ``margin`` unused); the set
-    lists the region's assumptions. ``box`` is :func:`padded_extent` of ``inner``, given where the
-    caller has it."""
+    way (``road`` a ``DrivableRegion`` or ``reach.lanes.LaneRegion``, ``margin`` unused), or the
+    whole plane (``road`` None). With ``discs`` (``reach.speed_limit``) each tube is cut to its
+    disc as well: a trajectory keeping both assumptions stays in region ∩ disc j over [0, s_j],
+    so its positions lie in the components of tube_j ∩ region ∩ disc_j that meet the start. The
+    set lists the region's assumptions, then ``speed_limit`` with discs. ``box`` is
+    :func:`padded_extent` of ``inner``, given where the caller has it."""
 
     clearance_from_tubes = True
 
     def __init__(
         self,
         inner: FRTSet,
-        road: RoadMap | DrivableRegion | LaneRegion,
+        road: RoadMap | DrivableRegion | LaneRegion | None,
         margin: float = 0.0,
         box: tuple[float, float, float, float] | None = None,
+        discs: ReachDiscs | None = None,
     ) -> None:
         super().__init__(
             inner.pose, inner.slice_dt, inner.horizon_s, inner.n_slices, inner.conservative
         )
         self.inner = inner
         self.source = road.region(margin) if isinstance(road, RoadMap) else road
-        self.assumptions: tuple[str, ...] = self.source.assumptions
+        self.discs = discs
+        named = () if self.source is None else self.source.assumptions
+        self.assumptions: tuple[str, ...] = named + (() if discs is None else (SPEED_LIMIT,))
         self.notch = inner.notch
         self.notch_possible = inner.notch_possible
         self.evaluations = inner.evaluations
@@ -133,14 +228,18 @@ class CutSet(FRTSet):
         self._intervals: dict[int, BaseGeometry] = {}
         self._lock = threading.Lock()
         self._box = padded_extent(inner) if box is None else box
-        self._region = region_in_frame(self.source, inner.pose, self._box)
+        self._region = (
+            None if self.source is None else region_in_frame(self.source, inner.pose, self._box)
+        )
         self._start: BaseGeometry | None = None
 
-    def region_for(self, geometry: BaseGeometry) -> BaseGeometry:
+    def region_for(self, geometry: BaseGeometry) -> BaseGeometry | None:
         """R (human frame) around ``geometry``: the set's region, rebuilt around both if the
-        geometry reaches past its box."""
+        geometry reaches past its box; None for the whole plane."""
         bounds = geometry.bounds
         with self._lock:
+            if self.source is None:
+                return None
             if not geometry.is_empty and not covers_box(self._box, bounds):
                 pad = REGION_PAD_M
                 self._box = (
@@ -152,20 +251,25 @@ class CutSet(FRTSet):
                 self._region = region_in_frame(self.source, self.pose, self._box)
             return self._region
 
-    def cut(self, geometry: BaseGeometry) -> BaseGeometry:
-        """``geometry`` ∩ R (no components dropped)."""
-        return cut_to(geometry, self.region_for(geometry))
+    def cut(self, geometry: BaseGeometry, j: int | None = None) -> BaseGeometry:
+        """``geometry`` ∩ R, and ∩ disc ``j`` where the set has discs and ``j`` is given (no
+        components dropped)."""
+        region = self.region_for(geometry)
+        found = geometry if region is None else cut_to(geometry, region)
+        if self.discs is not None and j is not None:
+            found = self.discs.cut(found, j)
+        return found
 
     def start(self) -> BaseGeometry:
-        """slice_0 ∩ R: where a trajectory keeping to R may start."""
+        """slice_0 ∩ R (∩ disc 0): where a trajectory keeping to R may start."""
         if self._start is None:
-            self._start = self.cut(self.inner.slice(0))
+            self._start = self.cut(self.inner.slice(0), 0)
         return self._start
 
     def tube(self, j: int) -> BaseGeometry:
         found = self._tubes.get(j)
         if found is None:
-            found = connected_to(self.cut(self.inner.tube(j)), self.start())
+            found = connected_to(self.cut(self.inner.tube(j), j), self.start())
             self._tubes[j] = found
         return found
 

@@ -29,6 +29,7 @@ The lanes are indexed once per map too (``reach.lanes.LaneGraph``: areas, centre
 each one leads to), their areas grown by each margin with R: the region of the lanes an agent can
 reach (:meth:`RoadMap.lane_region`) is read like R, and cut the same way (``reach.road_cut``).
 Successor and neighbour ids the archive does not hold are kept as read and not followed.
+Archives carry no speed limits: every lane's ``speed_limit`` is None (a Lanelet2 map's may not be).
 """
 
 from __future__ import annotations
@@ -76,7 +77,8 @@ class MapFormatError(ValueError):
 @dataclass(frozen=True)
 class Lane:
     """One lane segment: its boundaries (and centre line, where given) as [n, 2] arrays; the
-    lanes it leads to by id (an archive's integers, a Lanelet2 map's strings)."""
+    lanes it leads to by id (an archive's integers, a Lanelet2 map's strings); its speed limit
+    where known."""
 
     id: str
     lane_type: str
@@ -88,6 +90,9 @@ class Lane:
     predecessors: tuple[int | str, ...]
     left_neighbor: int | str | None = None
     right_neighbor: int | str | None = None
+    #: The lane's speed limit (m/s) where the map gives one (a Lanelet2 map may; an archive
+    #: does not), else None.
+    speed_limit: float | None = None
 
 
 @dataclass(frozen=True)
@@ -435,6 +440,15 @@ class RoadMap:
         R ∩ L if ``drivable`` else L (``reach.lanes``); None where no start lane holds the agent."""
         index = self.lane_graph.index(margin, self.region(margin))
         return self.lane_graph.region(index, pose, box, drivable, lane_types, tolerance)
+
+    def speed_cap(
+        self, pose: Pose, box: tuple[float, ...], margin: float, factor: float
+    ) -> float | None:
+        """v_cap of an agent at ``pose`` whose set stays within the box ``box`` (map frame):
+        ``factor`` × the highest limit among the vehicle lanes it reaches within it
+        (``reach.lanes.LaneGraph.speed_cap``); None where that is not known."""
+        index = self.lane_graph.index(margin, self.region(margin))
+        return self.lane_graph.speed_cap(index, pose, box, factor)
 
     def cut(self, k_world: BaseGeometry, margin: float) -> BaseGeometry:
         """K ∩ R for a set K in the map's frame: R read near K's bounding box only."""

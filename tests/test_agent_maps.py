@@ -38,6 +38,8 @@ from tests.test_maps_api import (
 from tests.test_road_cut import MODEL, scenario_settings
 
 BOTH = ["drivable_area", "reachable_lanes"]
+#: The server's default: the archive has no speed limits, so ``speed_limit`` is never in force.
+CONFIGURED = [*BOTH, "speed_limit"]
 RADIUS = 1.5
 MARGIN = 1.0
 
@@ -127,7 +129,7 @@ def pair(client: TestClient) -> dict[str, Any]:
 def test_a_car_on_the_road_is_answered_under_its_assumptions(client, pair) -> None:
     agent = client.get("/v1/agents/road-car").json()
     assert agent["map_id"] == "austin" and agent["assumptions"] == BOTH
-    assert agent["relaxed_assumptions"] == [] and agent["config"]["assumptions"] == BOTH
+    assert agent["relaxed_assumptions"] == [] and agent["config"]["assumptions"] == CONFIGURED
     plain = client.get("/v1/agents/plain-car").json()
     assert (plain["map_id"], plain["assumptions"], plain["relaxed_assumptions"]) == (None, [], [])
     Agent.model_validate(agent)  # the SDK reads it

@@ -12,9 +12,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Iterator
+from pathlib import Path
 
 import numpy as np
 import pytest
+import shapely
+from fastapi.testclient import TestClient
+from shapely.geometry import shape
 
 from models.rollout import sample_reference_schedules
 from reach.contract import INITIAL_SET
@@ -23,9 +28,12 @@ from reach.lanelet2_map import road_map_from_osm
 from reach.road_cut import CutSet, assumption_cut, padded_extent, speed_discs
 from reach.road_map import MapFormatError, RoadMap, world_box
 from reach.speed_limit import SPEED_LIMIT, reach_radii
+from service.api.app import create_app
 from tests.fixtures.trajectories import simulate
-from tests.test_lanelet2_map import lanelet_map
+from tests.test_agent_maps import observe
+from tests.test_lanelet2_map import OsmWriter, error_of, lanelet_map, put_osm
 from tests.test_lanes import _road
+from tests.test_maps_api import WIDE, settings_for, wait_ready
 from tests.test_road_cut import (
     _covered,
     _inside,
@@ -191,3 +199,80 @@ def test_the_cut_lies_inside_the_uncut_set_and_a_faster_car_is_not_cut(engine) -
     box = world_box(pose, padded_extent(fast))
     assert road.speed_cap(pose, box, 1.0, 1.2) == pytest.approx(12.0)
     assert isinstance(CutSet(fast, None).tube(3), type(fast.tube(3)))  # no region, no discs
+
+
+def limits_osm(speed_limit: str = "36") -> bytes:
+    """A Lanelet2 map: an eastbound lanelet along y in [-2, 2] from x = -30 to 40 and its
+    successor on to 120, both tagged ``speed_limit`` (km/h), and two far road areas (y = -100,
+    y = 100, x from -130 to 220) so the extent holds the box of every set of a car near the
+    origin (the observation's test reads the lanes over one, ``reach.road_cut.observation_box``)."""
+    writer = OsmWriter()
+    tags = {"type": "lanelet", "subtype": "road", "speed_limit": speed_limit}
+    for key, (x0, x1) in enumerate([(-30.0, 40.0), (40.0, 120.0)], start=1):
+        left = writer.way([{"x": x0, "y": 2.0}, {"x": x1, "y": 2.0}])
+        right = writer.way([{"x": x0, "y": -2.0}, {"x": x1, "y": -2.0}])
+        writer.relation(key, [(left, "left"), (right, "right")], tags)
+    for key, y in ((10, -100.0), (11, 100.0)):
+        ring = [{"x": -130.0, "y": y}, {"x": 220.0, "y": y}, {"x": 220.0, "y": y + 1.0}]
+        outer = writer.way(ring, closed=True)
+        writer.relation(key, [(outer, "outer")], {"type": "multipolygon", "subtype": "road"})
+    return writer.xml()
+
+
+@pytest.fixture(scope="module")
+def client(analytic_model_path: Path) -> Iterator[TestClient]:
+    app = create_app(settings_for(analytic_model_path))
+    with TestClient(app, raise_server_exceptions=False) as test_client:
+        wait_ready(test_client)
+        assert put_osm(test_client, "limits", limits_osm()).status_code == 200
+        yield test_client
+
+
+def _reach(client: TestClient, agent_id: str) -> tuple[float, list[str]]:
+    """How far the agent's whole-horizon K reaches from its position (the origin), and the
+    assumptions of the contours."""
+    answer = client.get(f"/v1/agents/{agent_id}/frt?slices=1.0").json()
+    k = shape(answer["tube"]["K"])
+    return float(shapely.hausdorff_distance(k, shapely.Point(0.0, 0.0))), answer["assumptions"]
+
+
+def _violations(client: TestClient) -> float:
+    prefix = 'frt_assumption_violations_total{agent_class="car",assumption="speed_limit"} '
+    lines = [ln for ln in client.get("/metrics").text.splitlines() if ln.startswith(prefix)]
+    return float(lines[0].split()[-1]) if lines else 0.0
+
+
+def test_a_car_below_v_cap_is_answered_under_speed_limit(client: TestClient) -> None:
+    """v_cap = 1.2 × 36 km/h = 12 m/s: from 10 m/s K reaches at most r₀ + 12·3 m; the same car
+    under the road's assumptions alone reaches farther."""
+    state = {"x": 0.0, "y": 0.0, "heading": 0.0, "speed": 10.0}
+    observe(client, "capped", 0.0, state, map_id="limits")
+    observe(client, "uncapped", 0.0, state, map_id="limits", config={"assumptions": list(ALL[:2])})
+    assert client.get("/v1/agents/capped").json()["assumptions"] == list(ALL)
+    capped, labels = _reach(client, "capped")
+    uncapped, other = _reach(client, "uncapped")
+    assert labels == list(ALL) and other == list(ALL[:2])
+    assert capped <= INITIAL_SET.radius_m + 12.0 * 3.0 + 0.01 < uncapped
+    answer = client.post("/v1/frt", json={"state": state, "control_bounds": WIDE,
+                                          "map_id": "limits"}).json()  # fmt: skip
+    assert answer["assumptions"] == list(ALL)
+
+
+def test_a_car_faster_than_v_cap_loses_the_assumption_for_the_relax_time(client) -> None:
+    before = _violations(client)
+    fast = {"x": 0.0, "y": 0.0, "heading": 0.0, "speed": 13.0}
+    observe(client, "speeder", 10.0, fast, map_id="limits")
+    agent = client.get("/v1/agents/speeder").json()
+    assert agent["assumptions"] == list(ALL[:2])
+    assert agent["relaxed_assumptions"] == [{"assumption": SPEED_LIMIT, "until": 15.0}]
+    assert _violations(client) == before + 1
+    assert _reach(client, "speeder")[1] == list(ALL[:2])
+    observe(client, "speeder", 15.0, {**fast, "speed": 10.0})
+    agent = client.get("/v1/agents/speeder").json()
+    assert agent["assumptions"] == list(ALL) and agent["relaxed_assumptions"] == []
+
+
+def test_a_malformed_limit_over_the_api_is_a_422_naming_it(client: TestClient) -> None:
+    field, msg = error_of(put_osm(client, "bad", limits_osm("fast")))
+    assert field == "relation.1.tag.speed_limit" and msg.startswith("must be a speed")
+    assert client.get("/v1/maps/bad").status_code == 404

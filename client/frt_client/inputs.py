@@ -110,7 +110,7 @@ class AgentConfig(RequestPart):
     coverage_target: float | None = None
     coverage_step: float | None = None
     #: The map assumptions to answer under where the agent names a map ("drivable_area",
-    #: "reachable_lanes"; [] for none; default: the server's).
+    #: "reachable_lanes", "speed_limit"; [] for none; default: the server's).
     assumptions: list[Assumption] | None = None
 
 

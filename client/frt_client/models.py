@@ -16,7 +16,7 @@ Part = Literal["K", "C"]
 BoundsFit = Literal["envelope", "endpoints"]
 BoundsRule = Literal["paper", "uniform_mixture", "mass_ramp"]
 #: The map assumptions a set may be cut by (the service's docs/maps.md).
-Assumption = Literal["drivable_area", "reachable_lanes"]
+Assumption = Literal["drivable_area", "reachable_lanes", "speed_limit"]
 #: A GeoJSON geometry object (``Polygon`` or ``MultiPolygon``) in the world frame.
 GeoJSON = dict[str, Any]
 

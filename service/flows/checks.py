@@ -245,7 +245,7 @@ def _road_assumptions(
     labels = cut_near(
         services,
         states,
-        [job.key for job in road.jobs],
+        road.jobs,
         road.chosen,
         distances,
         (points.probe_xy, road.t_rel, points.thresholds(radii)),

@@ -105,7 +105,7 @@ class AgentSet:
         entry, active = agent_assumptions(services, self.state)
         if entry is None:
             return frt, frt, conservative, []
-        cut, used = agent_cut(services, entry, services.job_for(self.state).key, frt, active)
+        cut, used = agent_cut(services, entry, services.job_for(self.state), frt, active)
         return cut, frt, conservative, used
 
 

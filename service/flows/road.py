@@ -12,11 +12,15 @@ names (``config.assumptions``, else ``FRT_ASSUMPTIONS``) that its class allows
 (:data:`CLASS_ASSUMPTIONS`). Each observation tests them at the observed pose (SPOT's
 self-relaxation): ``drivable_area`` is broken off R, ``reachable_lanes`` where the pose is
 within the map's extent and no start lane holds it (``reach.lanes``: off every vehicle lane ⊕
-margin, or heading more than 30° off every lane holding it). A broken assumption is dropped for
+margin, or heading more than 30° off every lane holding it), ``speed_limit`` where the observed
+speed exceeds v_cap (``reach.speed_limit``) read over a box holding the box of every set the car
+may have (``reach.road_cut.observation_box``: a superset of the lanes the set's own box reaches,
+so a higher or equal v_cap; not tested where it has none). A broken assumption is dropped for
 the agent until ``FRT_ASSUMPTION_RELAX_S`` after that observation on its clock, in its stored
 state (so every replica reads the same); the first observation at or after that time tests it
 again. Outside the map's extent ``reachable_lanes`` is not tested and does not apply (no lane is
-known there); ``drivable_area`` holds there (R is the whole plane outside the extent).
+known there); ``drivable_area`` holds there (R is the whole plane outside the extent). A set is
+cut by ``speed_limit`` where its own box's v_cap is at least the observed speed.
 """
 
 from __future__ import annotations
@@ -28,19 +32,23 @@ from typing import Any
 import numpy as np
 
 from reach.agent_classes import DEFAULT_CLASS
+from reach.frames import Pose
 from reach.lanes import HEADING_TOLERANCE, REACHABLE_LANES, VEHICLE_LANE_TYPES
-from reach.road_cut import DRIVABLE_AREA
+from reach.road_cut import DRIVABLE_AREA, observation_box
 from reach.sets import FRTSet
+from reach.speed_limit import SPEED_LIMIT
+from service.runtime.jobs import FRTJob
 from service.runtime.maps import MapEntry, VersionRoad
 from service.runtime.services import Services
 from service.runtime.stores import AgentState
 from service.wire.schemas import HumanState, RelaxedAssumptionOut
 
 #: The assumptions each agent class may be answered under: vehicles keep to the drivable area
-#: and their reachable lanes, cyclists to the drivable area (bike lanes are not used), pedestrians
-#: to neither (they walk on pavements and cross anywhere; a model with crossings is not built).
+#: and their reachable lanes, below their lanes' speed limit times the factor; cyclists to the
+#: drivable area (bike lanes are not used); pedestrians to none (they walk on pavements and
+#: cross anywhere; a model with crossings is not built).
 CLASS_ASSUMPTIONS: dict[str, tuple[str, ...]] = {
-    "car": (DRIVABLE_AREA, REACHABLE_LANES),
+    "car": (DRIVABLE_AREA, REACHABLE_LANES, SPEED_LIMIT),
     "cyclist": (DRIVABLE_AREA,),
     "pedestrian": (),
 }
@@ -60,15 +68,16 @@ def map_entry(services: Services, map_id: str | None, field: str = "map_id") -> 
 def stateless_cut(
     services: Services,
     entry: MapEntry | None,
-    key: Hashable,
+    job: FRTJob,
     frt: FRTSet,
     pose: HumanState,
     configured: Sequence[str],
 ) -> tuple[FRTSet, list[str]]:
-    """A car's ``frt`` (the stateless endpoint's, for a state at ``pose``) cut by the
-    ``configured`` assumptions its pose keeps, and those it was cut by: ``frt`` itself and none
-    without a map or where the pose keeps none (a broken one is counted). The cut is kept per
-    (``key``, whether ``frt`` is conservative) while ``frt`` is the set answered from."""
+    """A car's ``frt`` (the stateless endpoint's, of ``job``, for a state at ``pose``) cut by
+    the ``configured`` assumptions its pose keeps, and those it was cut by: ``frt`` itself and
+    none without a map or where the pose keeps none (a broken one is counted). The cut is kept
+    per (the job's key, whether ``frt`` is conservative) while ``frt`` is the set answered
+    from."""
     if entry is None:
         return frt, []
     wanted = [a for a in CLASS_ASSUMPTIONS[DEFAULT_CLASS] if a in configured]
@@ -78,7 +87,7 @@ def stateless_cut(
     if not held:
         services.metrics.road_cuts.labels("off_road").inc()
         return frt, []
-    return agent_cut(services, entry, key, frt, held)
+    return agent_cut(services, entry, job, frt, held)
 
 
 def _tested(
@@ -96,10 +105,15 @@ def _tested(
 
 def _holds(services: Services, entry: MapEntry, name: str, pose: HumanState) -> bool | None:
     """Whether the pose keeps assumption ``name``; None where it is not tested (the lanes
-    outside the map's extent)."""
+    outside the map's extent; the speed limit where no v_cap is known)."""
     road, margin = entry.road, services.maps.margin
     if name == DRIVABLE_AREA:
         return road.on_road(pose.x, pose.y, margin)
+    if name == SPEED_LIMIT:
+        at = Pose(pose.x, pose.y, pose.heading)
+        box = observation_box(at, pose.speed, services.horizon_s())
+        v_cap = road.speed_cap(at, box, margin, services.maps.speed_factor)
+        return None if v_cap is None else pose.speed <= v_cap
     x0, y0, x1, y1 = road.extent
     if not (x0 <= pose.x <= x1 and y0 <= pose.y <= y1):
         return None
@@ -170,12 +184,15 @@ def relaxed_out(state: AgentState) -> list[RelaxedAssumptionOut]:
 
 
 def agent_cut(
-    services: Services, entry: MapEntry, key: Hashable, frt: FRTSet, active: Sequence[str]
+    services: Services, entry: MapEntry, job: FRTJob, frt: FRTSet, active: Sequence[str]
 ) -> tuple[FRTSet, list[str]]:
-    """``frt`` (the set of the agent's version ``key``) cut by its ``active`` assumptions, and
-    those it was cut by (the lanes fall away where they do not apply to the set: R alone);
-    ``frt`` and none where nothing cuts it. Cut sets are kept (``MapRegistry.cut_for``)."""
-    cut = services.maps.cut_for(entry, (key, frt.conservative), frt, tuple(active))
+    """``frt`` (the set of ``job``, the agent's version) cut by its ``active`` assumptions, and
+    those it was cut by (the lanes fall away where they do not apply to the set: R alone; the
+    speed limit where the set's lanes give no v_cap at least the observed speed); ``frt`` and
+    none where nothing cuts it. Cut sets are kept (``MapRegistry.cut_for``)."""
+    key = (job.key, frt.conservative)
+    speed = (job.v_start, job.bounds)
+    cut = services.maps.cut_for(entry, key, frt, tuple(active), speed)
     if cut is None:
         return frt, []
     services.metrics.road_cuts.labels("cut").inc()
@@ -185,7 +202,7 @@ def agent_cut(
 def cut_near(
     services: Services,
     states: Sequence[AgentState],
-    keys: Sequence[Hashable],
+    jobs: Sequence[FRTJob],
     sets: dict[int, FRTSet],
     distances: dict[int, np.ndarray],
     probes: tuple[np.ndarray, Sequence[np.ndarray | None], np.ndarray],
@@ -216,7 +233,7 @@ def cut_near(
         if i in coarse or time.perf_counter() > until:
             labels.append([])
             continue
-        frt, used = agent_cut(services, entry, keys[i], sets[i], active)
+        frt, used = agent_cut(services, entry, jobs[i], sets[i], active)
         if used:
             measured = np.array(distances[i], dtype=np.float64)
             times = None if t_rel[i] is None else t_rel[i][near]  # type: ignore[index]

@@ -92,7 +92,7 @@ async def stateless_frt(services: Services, request: FRTRequest, arrival: float)
 
     def compute() -> FRTResponse:
         frt = exact if exact is not None else services.conservative(job)
-        frt, assumptions = stateless_cut(services, road, job.key, frt, state, configured)
+        frt, assumptions = stateless_cut(services, road, job, frt, state, configured)
         return FRTResponse(
             control_bounds=ControlBoundsOut.from_list(bounds.tolist()),
             beta=request.beta if request.control_bounds is None else None,

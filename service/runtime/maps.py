@@ -6,7 +6,9 @@ A map is an Argoverse 2 map archive (``reach.road_map``) or a Lanelet2 OSM file
 (``FRT_MAP_MARGIN_M``) is built when it is registered, so no request pays for it. Registering an
 id again replaces its map; sets cut by the map before are not reused (each registration has its
 own generation). Cut sets (``reach.road_cut.CutSet``) are kept per (set, map, assumptions) in a
-small LRU: a request asking again for the same inputs reads the cut geometry drawn before.
+small LRU: a request asking again for the same inputs reads the cut geometry drawn before. The
+``speed_limit`` assumption's v_cap is the lane limit times the server's factor
+(``FRT_SPEED_LIMIT_FACTOR``).
 """
 
 from __future__ import annotations
@@ -19,6 +21,8 @@ from itertools import count
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from reach.lanelet2_map import road_map_from_osm
 from reach.lanes import (
     DRIVABLE_AREA,
@@ -27,9 +31,10 @@ from reach.lanes import (
     VEHICLE_LANE_TYPES,
     LaneRegion,
 )
-from reach.road_cut import CutSet, lane_cut, padded_extent
+from reach.road_cut import CutSet, assumption_cut, padded_extent
 from reach.road_map import MapFormatError, RoadMap, world_box
 from reach.sets import FRTSet
+from reach.speed_limit import DEFAULT_FACTOR
 from service.runtime.settings import Settings
 from service.wire.errors import APIError, FieldError
 
@@ -61,12 +66,16 @@ class MapEntry:
 
 
 class MapRegistry:
-    """Maps by id, at most ``max_maps``; each one's region R for ``margin`` built on registering."""
+    """Maps by id, at most ``max_maps``; each one's region R for ``margin`` built on registering;
+    ``speed_factor`` × a lane's limit is the ``speed_limit`` assumption's v_cap."""
 
-    def __init__(self, max_maps: int, margin: float, max_points: int) -> None:
+    def __init__(
+        self, max_maps: int, margin: float, max_points: int, speed_factor: float = DEFAULT_FACTOR
+    ) -> None:
         self.max_maps = max_maps
         self.margin = margin
         self.max_points = max_points
+        self.speed_factor = speed_factor
         self._maps: dict[str, MapEntry] = {}
         self._lock = threading.Lock()
         self._generations = count(1)
@@ -157,25 +166,27 @@ class MapRegistry:
         return cut
 
     def cut_for(
-        self, entry: MapEntry, key: Hashable, frt: FRTSet, assumptions: tuple[str, ...]
+        self,
+        entry: MapEntry,
+        key: Hashable,
+        frt: FRTSet,
+        assumptions: tuple[str, ...],
+        speed: tuple[float, np.ndarray] | None = None,
     ) -> CutSet | None:
         """``frt`` cut by the region of ``assumptions`` (R for ``drivable_area``, R ∩ L with
         ``reachable_lanes`` too, L for ``reachable_lanes`` alone; ``reach.road_cut``), or by R
-        alone where the lanes do not apply (``lane_cut`` None; the set lists what cut it), None
-        where nothing applies. Kept under (``key``, ``assumptions``, the map's generation) while
-        ``frt`` is the set cut: a refined set replacing it is cut anew."""
+        alone where the lanes do not apply (``lane_cut`` None), and by the discs of
+        ``speed_limit`` where ``speed`` (the set's v_start and bounds) is given and they apply
+        (the set lists what cut it); None where nothing applies. Kept under (``key``,
+        ``assumptions``, the map's generation) while ``frt`` is the set cut: a refined set
+        replacing it is cut anew (``key`` stands for the set's inputs, ``speed`` among them)."""
         cache_key = ((key, assumptions), entry.generation)
         with self._lock:
             found = self._cuts.get(cache_key)
             if found is not None and found[0] is frt:
                 self._cuts.move_to_end(cache_key)
                 return found[1]
-        drivable = DRIVABLE_AREA in assumptions
-        cut = None
-        if REACHABLE_LANES in assumptions:
-            cut = lane_cut(frt, entry.road, self.margin, drivable)
-        if cut is None and drivable:
-            cut = CutSet(frt, entry.road, self.margin)
+        cut = assumption_cut(frt, entry.road, self.margin, assumptions, speed, self.speed_factor)
         with self._lock:
             self._cuts[cache_key] = (frt, cut)
             self._cuts.move_to_end(cache_key)
@@ -305,7 +316,12 @@ class VersionRoad:
 
 def registry_for(settings: Settings) -> MapRegistry:
     """The server's registry, with the map of ``FRT_MAP`` (if set) loaded as ``FRT_MAP_ID``."""
-    registry = MapRegistry(settings.max_maps, settings.map_margin_m, settings.max_map_points)
+    registry = MapRegistry(
+        settings.max_maps,
+        settings.map_margin_m,
+        settings.max_map_points,
+        settings.speed_limit_factor,
+    )
     if settings.map is not None:
         registry.load_file(settings.map, settings.map_id)
     return registry

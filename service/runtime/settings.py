@@ -21,7 +21,7 @@ from reach.notch import NOTCH_CUT_BY_DEFAULT
 from service.runtime.profiles import PROFILE_ENV, load_profile
 
 #: The map assumptions the service knows (docs/maps.md).
-AssumptionName = Literal["drivable_area", "reachable_lanes"]
+AssumptionName = Literal["drivable_area", "reachable_lanes", "speed_limit"]
 
 DEFAULT_MODEL = Path(__file__).resolve().parents[2] / "models" / "frt_unicycle.onnx"
 
@@ -132,12 +132,17 @@ class Settings(BaseSettings):
     #: ... and the points one archive may hold (422 past it).
     max_map_points: int = Field(2_000_000, ge=1)
     #: The map assumptions an agent that names a map is answered under, unless its ``config``
-    #: names its own (``FRT_ASSUMPTIONS=drivable_area,reachable_lanes``; empty: none); each
-    #: class keeps those that apply to it (``service.flows.road.CLASS_ASSUMPTIONS``).
+    #: names its own (``FRT_ASSUMPTIONS=drivable_area,reachable_lanes,speed_limit``; empty:
+    #: none); each class keeps those that apply to it (``service.flows.road.CLASS_ASSUMPTIONS``).
     assumptions: Annotated[tuple[AssumptionName, ...], NoDecode] = (
         "drivable_area",
         "reachable_lanes",
+        "speed_limit",
     )
+    #: ``speed_limit``: a car's speed stays at most this × the highest limit of the lanes it can
+    #: reach (``reach.speed_limit``): 1.2 leaves 20 % over the limit before the assumption is
+    #: broken.
+    speed_limit_factor: float = Field(1.2, ge=1.0, le=3.0)
     #: An assumption an agent is observed breaking is dropped for it for this many seconds of
     #: its own clock (SPOT's self-relaxation; docs/maps.md).
     assumption_relax_s: float = Field(5.0, ge=0.0, le=3600.0)

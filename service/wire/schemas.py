@@ -140,7 +140,7 @@ class ObservationPrediction(Request):
 
 AgentClassName = Literal["car", "cyclist", "pedestrian"]
 #: The map assumptions (docs/maps.md).
-Assumption = Literal["drivable_area", "reachable_lanes"]
+Assumption = Literal["drivable_area", "reachable_lanes", "speed_limit"]
 
 
 class AgentConfig(Request):
@@ -181,10 +181,10 @@ class AgentConfig(Request):
     )
     assumptions: list[Assumption] | None = Field(
         None,
-        max_length=2,
+        max_length=3,
         description="the map assumptions to answer under where the agent names a map (default: "
         "the server's FRT_ASSUMPTIONS); its class keeps those that apply to it: a car "
-        "drivable_area and reachable_lanes, a cyclist drivable_area, a pedestrian none "
+        "drivable_area, reachable_lanes and speed_limit, a cyclist drivable_area, a pedestrian none "
         "(docs/maps.md); [] for none",
     )
 
@@ -873,7 +873,7 @@ class FRTRequest(Request):
     )
     assumptions: list[Assumption] | None = Field(
         None,
-        max_length=2,
+        max_length=3,
         description="with map_id: the map assumptions to answer under (default: the server's "
         "FRT_ASSUMPTIONS); those the state breaks are dropped",
     )

@@ -4,7 +4,6 @@ worker processes."""
 from __future__ import annotations
 
 import asyncio
-import functools
 import multiprocessing
 import os
 import pickle
@@ -22,14 +21,13 @@ from models.value_fields import engine_for
 from reach.engine import FRTEngine
 from reach.frames import Pose
 from service.runtime.demand import ExactDemand
-from service.runtime.exact_worker import ExactTask, start_pool, timed_at_server_priority
+from service.runtime.exact_worker import ExactTask, start_pool
 from service.runtime.metrics import Metrics
 from service.runtime.scheduler import (
     EXACT_OLDEST_AFTER_S,
     FRTKey,
     FRTScheduler,
     LRUCache,
-    timed,
 )
 from service.runtime.services import Services
 from service.runtime.settings import Settings
@@ -427,41 +425,6 @@ def test_while_agents_are_demanded_the_others_sets_keep_off_one_worker() -> None
     finally:
         gate.set()
         s.shutdown()
-
-
-def test_demanded_sets_run_by_the_urgent_runner_and_the_others_by_timed() -> None:
-    s = FRTScheduler(workers=1, cache_size=16, metrics=Metrics())
-    s.start()
-    s.demand = ExactDemand(hold_s=60.0, size=16)
-    s.demand.note(["near"])
-    urgent: list[object] = []
-
-    def runner(compute: Callable[[], object]) -> tuple[object, float]:
-        urgent.append(compute())
-        return urgent[-1], 0.0
-
-    s.urgent = runner
-    try:
-        assert s.submit(key("near", 1), lambda: "near").result(5) == "near"
-        assert s.submit(key("far", 1), lambda: "far").result(5) == "far"
-    finally:
-        s.shutdown()
-    assert urgent == ["near"]
-
-
-@pytest.mark.skipif(not hasattr(os, "SCHED_IDLE"), reason="Linux scheduling policies")
-def test_a_worker_runs_an_urgent_set_at_the_servers_policy_and_returns_below_it(
-    analytic_model_path: Path,
-) -> None:
-    pool = start_pool(analytic_model_path, workers=1, nice=0, policy="idle")
-    try:
-        policy = functools.partial(os.sched_getscheduler, 0)
-        during, _ = pool.submit(timed_at_server_priority, policy).result(60)
-        after, _ = pool.submit(timed, policy).result(60)
-        between = os.sched_getscheduler(pool.pids[0])
-    finally:
-        pool.shutdown()
-    assert (during, after, between) == (os.SCHED_OTHER, os.SCHED_IDLE, os.SCHED_IDLE)
 
 
 def _until(condition: Callable[[], bool], timeout_s: float = 5.0) -> None:

@@ -24,7 +24,6 @@ import os
 import struct
 import threading
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -44,7 +43,6 @@ from reach.speed_programme import compile_speed_programme
 from reach.union import exact_union
 from service.runtime.memory import freeze_start_up_objects, keep_freed_memory
 from service.runtime.pipe_pool import PipePool
-from service.runtime.scheduler import timed
 
 log = logging.getLogger("frt.exact_worker")
 
@@ -143,31 +141,6 @@ def init_worker(
     lower_priority(policy, nice)
 
 
-#: The policy :func:`lower_priority` gave this worker process (None in the server).
-_policy: int | None = None
-
-
-def timed_at_server_priority(compute: Callable[[], Any]) -> tuple[Any, float]:
-    """``timed(compute)`` run at the server's scheduling policy (SCHED_OTHER), then back below it:
-    a set a planner's check waits for (a demanded agent's, ``service.runtime.demand``) is not
-    left to the CPU time nothing else wants. Where the switch is refused, at the worker's own."""
-    raised = _policy is not None and _set_policy(os.SCHED_OTHER)
-    try:
-        return timed(compute)
-    finally:
-        if raised and _policy is not None:
-            _set_policy(_policy)
-
-
-def _set_policy(policy: int) -> bool:
-    """Whether this process now runs under ``policy`` (Linux; elsewhere, or refused: False)."""
-    try:
-        os.sched_setscheduler(0, policy, os.sched_param(0))
-    except (AttributeError, OSError):
-        return False
-    return True
-
-
 def lower_priority(policy: str, nice: int) -> None:
     """Run this process below the server (Linux; elsewhere, or if refused, at its priority).
 
@@ -177,10 +150,9 @@ def lower_priority(policy: str, nice: int) -> None:
     * ``"batch"`` (SCHED_BATCH, plus ``nice``): a worker woken by a task does not preempt the
       server that sent it; it still counts as busy when the server wakes.
     """
-    global _policy
     chosen = os.SCHED_IDLE if policy == "idle" else os.SCHED_BATCH
-    if _set_policy(chosen):
-        _policy = chosen
+    with contextlib.suppress(AttributeError, OSError):
+        os.sched_setscheduler(0, chosen, os.sched_param(0))
     if nice and policy != "idle":
         with contextlib.suppress(OSError):  # not permitted here: run at the server's priority
             os.nice(nice)

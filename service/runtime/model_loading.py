@@ -24,12 +24,7 @@ from reach.held import compile_held_kernel
 from reach.packed_rings import compile_ring_kernels
 from reach.polygons import compile_polygon_kernel
 from reach.sweep_boxes import compile_sweep_kernels
-from service.runtime.exact_worker import (
-    ExactTask,
-    start_pool,
-    timed_at_server_priority,
-    warm_up_task,
-)
+from service.runtime.exact_worker import ExactTask, start_pool, warm_up_task
 from service.runtime.refiner import Refinement
 from service.runtime.scheduler import FRTScheduler, timed
 from service.runtime.settings import Settings
@@ -123,7 +118,6 @@ def start_worker_processes(
         for kind, t in (("tube", None), ("slice", 1.0)):  # and the first contours drawn here
             frt.geojson(kind, t, settings.collision_radius)
     scheduler.use_executor(pool)
-    scheduler.urgent = timed_at_server_priority
     log.info(
         "FRT worker processes started",
         extra={"workers": workers, "seconds": round(time.perf_counter() - start, 3)},

@@ -176,9 +176,6 @@ class FRTScheduler:
         self._lock = threading.RLock()  # done-callbacks may run inline in submit()
         #: The agents whose queued sets start first (None: the newest first, whoever's).
         self.demand: ExactDemand | None = None
-        #: Runs a demanded agent's set in place of :func:`timed` (worker processes: at the
-        #: server's priority, ``service.runtime.exact_worker.timed_at_server_priority``).
-        self.urgent: Callable[[Callable[[], Any]], tuple[Any, float]] | None = None
 
     @property
     def workers(self) -> int:
@@ -409,10 +406,8 @@ class FRTScheduler:
                     job.dispatched - job.submitted
                 )
                 executor = self._executor
-                demanded = self.demand is not None and key not in self._background
-                run = self.urgent if demanded and self.urgent is not None else timed
                 try:
-                    handle = executor.submit(run, job.compute)
+                    handle = executor.submit(timed, job.compute)
                 except Exception as exc:  # e.g. a broken process pool; _finished says so
                     handle = Future()
                     handle.set_exception(exc)

@@ -470,6 +470,7 @@ class RoadMap:
             "format": self.format,
             "drivable_areas": self.areas,
             "lane_segments": len(self.lanes),
+            "speed_limited_lanes": sum(lane.speed_limit is not None for lane in self.lanes),
             "pedestrian_crossings": len(self.crossings),
             "extent": list(self.extent),
             "drivable_area_m2": float(self.drivable.area),

@@ -33,7 +33,7 @@ from tests.fixtures.trajectories import simulate
 from tests.test_agent_maps import observe
 from tests.test_lanelet2_map import OsmWriter, error_of, lanelet_map, put_osm
 from tests.test_lanes import _road
-from tests.test_maps_api import WIDE, settings_for, wait_ready
+from tests.test_maps_api import RAW, WIDE, put, settings_for, wait_ready
 from tests.test_road_cut import (
     _covered,
     _inside,
@@ -224,7 +224,8 @@ def client(analytic_model_path: Path) -> Iterator[TestClient]:
     app = create_app(settings_for(analytic_model_path))
     with TestClient(app, raise_server_exceptions=False) as test_client:
         wait_ready(test_client)
-        assert put_osm(test_client, "limits", limits_osm()).status_code == 200
+        answer = put_osm(test_client, "limits", limits_osm())
+        assert answer.status_code == 200 and answer.json()["speed_limited_lanes"] == 2
         yield test_client
 
 
@@ -276,3 +277,4 @@ def test_a_malformed_limit_over_the_api_is_a_422_naming_it(client: TestClient) -
     field, msg = error_of(put_osm(client, "bad", limits_osm("fast")))
     assert field == "relation.1.tag.speed_limit" and msg.startswith("must be a speed")
     assert client.get("/v1/maps/bad").status_code == 404
+    assert put(client, "archive", RAW).json()["speed_limited_lanes"] == 0  # archives give none

@@ -984,6 +984,10 @@ class MapResponse(Response):
     size_bytes: int
     drivable_areas: int
     lane_segments: int
+    speed_limited_lanes: int = Field(
+        description="lanes whose speed limit the map gives (the speed_limit assumption's; none "
+        "in an Argoverse 2 archive)"
+    )
     pedestrian_crossings: int
     extent: list[float] = Field(
         description="[x_min, y_min, x_max, y_max] of every element: outside it nothing is cut"

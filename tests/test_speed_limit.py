@@ -23,9 +23,15 @@ from shapely.geometry import shape
 
 from models.rollout import sample_reference_schedules
 from reach.contract import INITIAL_SET
-from reach.frames import Pose
+from reach.frames import Pose, covers_box
 from reach.lanelet2_map import road_map_from_osm
-from reach.road_cut import CutSet, assumption_cut, padded_extent, speed_discs
+from reach.road_cut import (
+    CutSet,
+    assumption_cut,
+    observation_box,
+    padded_extent,
+    speed_discs,
+)
 from reach.road_map import MapFormatError, RoadMap, world_box
 from reach.speed_limit import SPEED_LIMIT, reach_radii
 from service.api.app import create_app
@@ -199,6 +205,24 @@ def test_the_cut_lies_inside_the_uncut_set_and_a_faster_car_is_not_cut(engine) -
     box = world_box(pose, padded_extent(fast))
     assert road.speed_cap(pose, box, 1.0, 1.2) == pytest.approx(12.0)
     assert isinstance(CutSet(fast, None).tube(3), type(fast.tube(3)))  # no region, no discs
+
+
+def test_the_observation_box_holds_every_set_box(engine) -> None:  # noqa: F811
+    """The box an observation's speed test reads the lanes over holds the box each set's v_cap
+    is read over, whatever the bounds within the hard limits: random ones and the fastest (so
+    its v_cap is at least the set's, and a car it finds too fast is too fast for the set)."""
+    rng = np.random.default_rng(1)
+    fastest = np.array([0.0, 10.0, 0.0, 10.0, 0.0, 10.0, 0.0, 10.0])
+    for k in range(200):
+        v = 20.0 if k == 0 else float(rng.uniform(0.0, 20.0))
+        ends = np.sort(rng.uniform(-1.0, 1.0, (2, 4)), axis=0) * [2.0, 10.0, 2.0, 10.0]
+        bounds = fastest if k == 0 else ends.reshape(-1)
+        pose = Pose(*rng.uniform(-50.0, 50.0, 2), float(rng.uniform(-math.pi, math.pi)))
+        for frt in [engine.conservative(pose, v, bounds)] + (
+            [engine.exact(pose, v, bounds)] if k < 3 else []
+        ):
+            outer = observation_box(pose, v, frt.horizon_s)
+            assert covers_box(outer, world_box(pose, padded_extent(frt))), (v, bounds)
 
 
 def limits_osm(speed_limit: str = "36") -> bytes:

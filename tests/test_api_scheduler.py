@@ -10,7 +10,7 @@ import pickle
 import threading
 import time
 from collections.abc import Callable, Iterator
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -432,3 +432,25 @@ def _until(condition: Callable[[], bool], timeout_s: float = 5.0) -> None:
     while not condition():
         assert time.monotonic() < end, "condition not reached"
         time.sleep(0.005)
+
+
+def test_an_executor_of_depth_two_is_handed_two_sets_a_worker() -> None:
+    """With ``use_executor(..., depth=2)`` the scheduler hands a worker its next set while it
+    computes one (the pool keeps it at hand); a third stays queued, replaceable by a newer
+    version."""
+    s = FRTScheduler(workers=1, cache_size=16, metrics=Metrics())
+    s.start()
+    s.use_executor(ThreadPoolExecutor(1), depth=2)
+    gate = threading.Event()
+    try:
+        first = s.submit(key("a", 1), lambda: gate.wait(5))
+        second = s.submit(key("b", 1), lambda: "b")
+        third = s.submit(key("c", 1), lambda: "c")
+        assert first.running() and second.running() and not third.running()
+        newer = s.submit(key("c", 2), lambda: "c2")
+        assert third.cancelled()
+        gate.set()
+        assert (second.result(5), newer.result(5)) == ("b", "c2")
+    finally:
+        gate.set()
+        s.shutdown()

@@ -54,3 +54,33 @@ def test_a_dying_worker_breaks_the_pool() -> None:
             pool.submit(_add, 1)
     finally:
         pool.shutdown()
+
+
+def _wait_for(path: str) -> float:
+    """Block until ``path`` exists (a gate the test opens); the time it started waiting."""
+    import time
+
+    started = time.time()
+    while not os.path.exists(path):
+        time.sleep(0.01)
+    return started
+
+
+def test_a_worker_holds_up_to_depth_tasks_and_answers_them_in_order(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """With ``depth`` 2 a busy worker is sent its next task before it answers the first (it
+    reads it on its own once it has written a result); a third waits in the pool's queue."""
+    gate = str(tmp_path / "open")
+    pool = PipePool(1, _init, (0,), timeout_s=60.0, depth=2)
+    try:
+        futures = [pool.submit(_wait_for, gate) for _ in range(3)]
+        (worker,) = pool._workers
+        assert len(worker.futures) == 2 and len(pool._queue) == 1
+        assert all(f.running() for f in futures[:2]) and not futures[2].running()
+        open(gate, "w").close()
+        started = [f.result(timeout=30) for f in futures]
+        assert started == sorted(started)  # run one after the other, in order
+        assert pool.submit(_add, 5).result(timeout=30)[0] == 5
+    finally:
+        pool.shutdown()
+    with pytest.raises(ValueError):
+        PipePool(1, _init, (0,), depth=0)

@@ -210,6 +210,11 @@ def decode_result(data: memoryview) -> Any:
     raise SetBytesError(f"a worker result of unknown kind {kind!r}")
 
 
+#: Tasks a worker process holds at once: its next set is at hand when it has sent one back,
+#: while the server's reader thread (which shares the GIL with the event loop) reads the result.
+WORKER_DEPTH = 2
+
+
 def start_pool(
     model_path: Path,
     workers: int,
@@ -217,10 +222,12 @@ def start_pool(
     policy: str = "idle",
     timeout_s: float = 120.0,
     network: bool = True,
+    depth: int = WORKER_DEPTH,
 ) -> PipePool:
     """A pool of ``workers`` processes, each with the engine loaded and warmed and run below the
-    server (:func:`lower_priority`), that send exact sets back as bytes (:func:`encode_result`);
-    raises if they cannot all be started within ``timeout_s``."""
+    server (:func:`lower_priority`), each holding up to ``depth`` tasks, that send exact sets
+    back as bytes (:func:`encode_result`); raises if they cannot all be started within
+    ``timeout_s``."""
     return PipePool(
         workers,
         initializer=init_worker,
@@ -228,4 +235,5 @@ def start_pool(
         timeout_s=timeout_s,
         encode=encode_result,
         decode=decode_result,
+        depth=depth,
     )

@@ -117,7 +117,7 @@ def start_worker_processes(
             frt, _ = warm.result(60.0)
         for kind, t in (("tube", None), ("slice", 1.0)):  # and the first contours drawn here
             frt.geojson(kind, t, settings.collision_radius)
-    scheduler.use_executor(pool)
+    scheduler.use_executor(pool, depth=pool.depth)
     log.info(
         "FRT worker processes started",
         extra={"workers": workers, "seconds": round(time.perf_counter() - start, 3)},

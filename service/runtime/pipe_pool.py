@@ -92,13 +92,19 @@ def _outcome_bytes(outcome: tuple[bool, Any], encode: Encode | None) -> bytes:
 class _Worker:
     process: Any  # multiprocessing.context.SpawnProcess
     conn: Connection
-    future: Future[Any] | None = field(default=None)
+    #: The tasks sent to it and not answered yet, oldest first (it answers in order).
+    futures: deque[Future[Any]] = field(default_factory=deque)
 
 
 class PipePool(Executor):
     """``workers`` spawned processes, each initialised by ``initializer(*initargs)``; raises if they
     are not all ready within ``timeout_s``. Results that ``encode`` writes come back through
-    ``decode`` (a result that does not decode fails its future with the decoder's error)."""
+    ``decode`` (a result that does not decode fails its future with the decoder's error).
+
+    A worker holds up to ``depth`` tasks in its pipe (the least busy worker takes the next):
+    with 2, it reads its next task as soon as it has written a result, instead of waiting while
+    this process, whose threads share one GIL with a busy event loop, reads the result and sends
+    the next task."""
 
     def __init__(
         self,
@@ -108,9 +114,13 @@ class PipePool(Executor):
         timeout_s: float = 120.0,
         encode: Encode | None = None,
         decode: Decode | None = None,
+        depth: int = 1,
     ) -> None:
         if (encode is None) != (decode is None):
             raise ValueError("encode and decode go together")
+        if depth < 1:
+            raise ValueError("depth must be at least 1")
+        self.depth = depth
         context = multiprocessing.get_context("spawn")
         self._decode = decode
         self._lock = threading.Lock()
@@ -137,7 +147,6 @@ class PipePool(Executor):
         except BaseException:
             self._stop_processes()
             raise
-        self._idle = list(self._workers)
         self._reader = threading.Thread(target=self._read, name="pipe-pool-reader", daemon=True)
         self._reader.start()
 
@@ -177,17 +186,20 @@ class PipePool(Executor):
 
     # ------------------------------------------------------------------ internals
     def _feed_locked(self) -> None:
-        """Hand queued tasks to idle workers (caller holds the lock)."""
-        while self._idle and self._queue:
+        """Hand queued tasks to the least busy workers holding fewer than ``depth`` (caller
+        holds the lock)."""
+        while self._queue:
+            worker = min(self._workers, key=lambda w: len(w.futures))
+            if len(worker.futures) >= self.depth:
+                return
             future, payload = self._queue.popleft()
             if not future.set_running_or_notify_cancel():
                 continue
-            worker = self._idle.pop()
-            worker.future = future
+            worker.futures.append(future)
             try:
                 worker.conn.send_bytes(payload)
             except OSError:  # the worker is gone; the reader breaks the pool on its EOF
-                worker.future = None
+                worker.futures.pop()
                 future.set_exception(BrokenExecutor("a worker process died"))
 
     def _read(self) -> None:
@@ -208,8 +220,7 @@ class PipePool(Executor):
                 except Exception as exc:  # a result that does not unpickle or decode here
                     ok, value = False, exc
                 with self._lock:
-                    future, worker.future = worker.future, None
-                    self._idle.append(worker)
+                    future = worker.futures.popleft() if worker.futures else None
                     self._feed_locked()
                 if future is not None:
                     if ok:
@@ -228,11 +239,11 @@ class PipePool(Executor):
 
     def _worker_gone(self, worker: _Worker) -> None:
         with self._lock:
-            if self._closed and worker.future is None:
+            if self._closed and not worker.futures:
                 return  # stopped as asked
             self._broken = "a worker process died"
-            failed = [worker.future] if worker.future is not None else []
-            worker.future = None
+            failed = list(worker.futures)
+            worker.futures.clear()
             failed += [f for f, _ in self._queue if f.set_running_or_notify_cancel()]
             self._queue.clear()
         for future in failed:

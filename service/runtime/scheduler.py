@@ -158,6 +158,9 @@ class FRTScheduler:
 
     def __init__(self, *, workers: int, cache_size: int, metrics: Metrics) -> None:
         self._workers = workers
+        #: Sets handed to the executor at once: ``workers``, or more where the executor keeps
+        #: each worker's next task at hand (:meth:`use_executor`).
+        self._slots = workers
         self._metrics = metrics
         self._executor: Executor | None = None
         self._cache = LRUCache(cache_size)
@@ -196,12 +199,15 @@ class FRTScheduler:
             if self._executor is None:
                 self._executor = ThreadPoolExecutor(self._workers, thread_name_prefix="frt-exact")
 
-    def use_executor(self, executor: Executor) -> None:
+    def use_executor(self, executor: Executor, depth: int = 1) -> None:
         """Compute on ``executor`` from now on (e.g. a process pool; its tasks must then pickle).
-        Sets already started finish where they are; the scheduler shuts ``executor`` down."""
+        Sets already started finish where they are; the scheduler shuts ``executor`` down.
+        ``depth``: tasks each worker holds at once (``PipePool``'s), so up to ``workers * depth``
+        sets are handed over together."""
         with self._lock:
             old = self._executor
             self._executor = executor
+            self._slots = self._workers * depth
         if old is not None:
             old.shutdown(wait=False)
         self._dispatch()
@@ -346,6 +352,7 @@ class FRTScheduler:
                 return {}
             now = time.perf_counter()
             free = [max(self._started.get(k, now) + typical - now, 0.0) for k in self._running]
+            free = sorted(free)[: self._workers]  # handed-over sets beyond a worker each wait
             idle = self._workers - len(self._running) - len(self._refinements.running)
             free += [0.0] * max(idle, 0)
             queued = list(reversed(self._queue.values()))  # newest first, as dispatched
@@ -387,7 +394,7 @@ class FRTScheduler:
             with self._lock:
                 if self._executor is None:
                     return
-                if len(self._running) + len(self._refinements.running) >= self._workers:
+                if len(self._running) + len(self._refinements.running) >= self._slots:
                     return
                 if not self._queue:
                     self._dispatch_refinements()
@@ -435,9 +442,9 @@ class FRTScheduler:
         return key
 
     def _background_cap(self, demand: ExactDemand) -> int:
-        """How many sets of agents not demanded may run at once: every worker while no agent is
-        demanded, else all but one."""
-        return self._workers - 1 if self._workers > 1 and demand.active() else self._workers
+        """How many sets of agents not demanded may be handed over at once: every slot while no
+        agent is demanded, else one set per worker but one."""
+        return self._workers - 1 if self._workers > 1 and demand.active() else self._slots
 
     def _dispatch_refinements(self) -> None:
         """Start queued refinements (``RefinementQueue.next``) on free workers, keeping one worker

@@ -24,9 +24,9 @@ from reach.road_cut import CutSet, connected_to, lane_cut, padded_extent
 from reach.road_map import RoadMap, world_box
 from tests.fixtures.trajectories import simulate
 from tests.test_road_cut import (
-    _covered,
     _inside,
     _world,
+    assert_rollouts_inside,
     engine,  # noqa: F401 (a fixture)
     road,  # noqa: F401 (a fixture)
     scenario_settings,
@@ -60,14 +60,7 @@ def test_every_rollout_that_keeps_to_its_lanes_is_in_the_cut_set(
     for _, state in trace:
         kept &= region.covers_xy(*_world(pose, state[0], state[1]))
     assert 50 < kept.sum() < len(kept)  # some keep to the lanes, some leave them
-    per_instant = round(cut.slice_dt / float(trace[0][0][0]))
-    for k, (tau, state) in enumerate(trace, start=1):
-        x, y = state[0][kept], state[1][kept]
-        assert _covered(cut.tube(cut.tube_index(float(tau[0]))), x, y).all(), k
-        if k % per_instant == 0:
-            assert _covered(cut.slice(k // per_instant), x, y).all(), k
-        elif k % 5 == 0:
-            assert _covered(cut.interval(k // per_instant + 1), x, y).all(), k
+    assert_rollouts_inside(cut, trace, kept)
 
 
 @pytest.mark.parametrize("index", range(3))

@@ -69,6 +69,19 @@ def _covered(geometry: shapely.Geometry, x: np.ndarray, y: np.ndarray) -> np.nda
     return shapely.covers(geometry, shapely.points(np.stack([x, y], axis=1)))
 
 
+def assert_rollouts_inside(cut: CutSet, trace: list, kept: np.ndarray) -> None:
+    """Every rollout of ``trace`` (``simulate``'s, human frame) that ``kept`` marks inside the
+    cut tube of its time, the slice of its instant and, between instants, the interval."""
+    per_instant = round(cut.slice_dt / float(trace[0][0][0]))
+    for k, (tau, state) in enumerate(trace, start=1):
+        x, y = state[0][kept], state[1][kept]
+        assert _covered(cut.tube(cut.tube_index(float(tau[0]))), x, y).all(), k
+        if k % per_instant == 0:
+            assert _covered(cut.slice(k // per_instant), x, y).all(), k
+        elif k % 5 == 0:
+            assert _covered(cut.interval(k // per_instant + 1), x, y).all(), k
+
+
 def _inside(outer: shapely.Geometry, inner: shapely.Geometry) -> bool:
     return inner.difference(outer).area < 1e-9
 
@@ -83,20 +96,10 @@ def test_every_rollout_that_keeps_to_the_road_is_in_the_cut_set(engine, road, in
                         sample_reference_schedules)  # fmt: skip
     region = road.region(MARGIN)
     on_road = np.ones(len(trace[0][1][0]), dtype=bool)
-    world = []
     for _, state in trace:
-        wx, wy = _world(pose, state[0], state[1])
-        on_road &= region.covers_xy(wx, wy)
-        world.append((state[0], state[1]))
+        on_road &= region.covers_xy(*_world(pose, state[0], state[1]))
     assert 50 < on_road.sum() < len(on_road)  # some keep to the road, some leave it
-    per_instant = round(cut.slice_dt / float(trace[0][0][0]))
-    for k, ((tau, _), (x, y)) in enumerate(zip(trace, world, strict=True), start=1):
-        x, y = x[on_road], y[on_road]
-        assert _covered(cut.tube(cut.tube_index(float(tau[0]))), x, y).all(), k
-        if k % per_instant == 0:
-            assert _covered(cut.slice(k // per_instant), x, y).all(), k
-        elif k % 5 == 0:
-            assert _covered(cut.interval(k // per_instant + 1), x, y).all(), k
+    assert_rollouts_inside(cut, trace, on_road)
     last = cut.n_slices - 1
     assert cut.tube(last).area < 0.9 * uncut.tube(last).area  # the road cuts
 

@@ -41,9 +41,9 @@ from tests.test_lanelet2_map import OsmWriter, error_of, lanelet_map, put_osm
 from tests.test_lanes import _road
 from tests.test_maps_api import RAW, WIDE, put, settings_for, wait_ready
 from tests.test_road_cut import (
-    _covered,
     _inside,
     _world,
+    assert_rollouts_inside,
     engine,  # noqa: F401 (a fixture)
 )
 
@@ -169,14 +169,7 @@ def test_every_rollout_below_v_cap_is_in_the_cut_set(engine, assumptions) -> Non
         if len(assumptions) > 1:
             kept &= cut.source.covers_xy(*_world(pose, state[0], state[1]))
     assert 50 < kept.sum() < len(kept)  # some keep below the cap, some do not
-    per_instant = round(cut.slice_dt / float(trace[0][0][0]))
-    for k, (tau, state) in enumerate(trace, start=1):
-        x, y = state[0][kept], state[1][kept]
-        assert _covered(cut.tube(cut.tube_index(float(tau[0]))), x, y).all(), k
-        if k % per_instant == 0:
-            assert _covered(cut.slice(k // per_instant), x, y).all(), k
-        elif k % 5 == 0:
-            assert _covered(cut.interval(k // per_instant + 1), x, y).all(), k
+    assert_rollouts_inside(cut, trace, kept)
     last = cut.n_slices - 1
     assert cut.tube(last).area < 0.9 * uncut.tube(last).area  # the cap cuts the front off
 

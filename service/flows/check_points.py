@@ -308,27 +308,13 @@ def _entries(
     least: np.ndarray, first: np.ndarray, points: CheckPoints, per_point: np.ndarray | None
 ) -> list[list[dict[str, Any]]]:
     """The entries per agent from each trajectory's least clearance and its first colliding row
-    (``points.n_points`` if none), with each one's clearances from ``per_point`` if given."""
-    starts = points.starts
-    ends = np.append(starts[1:], points.n_points)
-    hit = first < ends[None, :]
+    (``points.n_points`` if none), with each one's clearances from ``per_point`` if given:
+    :func:`_columns_of`, one dict per trajectory."""
     answers = []
-    for a, minimum in enumerate(least.tolist()):
-        index, time = _first_collisions(hit[a], first[a], points)
-        agent = [
-            {
-                "collision": i is not None,
-                "first_collision_index": i,
-                "first_collision_time": t,
-                "min_clearance": m,
-            }
-            for i, t, m in zip(index, time, minimum, strict=True)
-        ]
-        if per_point is not None:
-            rows = per_point[a].tolist()
-            for entry, start, end in zip(agent, starts.tolist(), ends.tolist(), strict=True):
-                entry["clearance"] = rows[start:end]
-        answers.append(agent)
+    for columns in _columns_of(least, first, points, per_point):
+        fields = list(columns)
+        rows = zip(*columns.values(), strict=True)
+        answers.append([dict(zip(fields, row, strict=True)) for row in rows])
     return answers
 
 

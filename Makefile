@@ -100,7 +100,8 @@ bench-batch: $(STAMP)
 # all of them at 10 Hz; how long a check waits behind frames (BASELINE=REV: that tree too).
 bench-scene: $(STAMP)
 	$(BIN)/python scripts/bench_scene.py --model $(MODEL) --duration 30 \
-		$(if $(BASELINE),--baseline $(BASELINE)) --out results/bench_scene.json
+		$(if $(BASELINE),--baseline $(BASELINE)) $(if $(TURNS),--turns $(TURNS)) \
+		--out results/bench_scene.json
 
 # The SDK adapters' control recovery replayed on the recorded tracks (results/adapter_error.json).
 adapter-error: $(STAMP)

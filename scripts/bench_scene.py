@@ -12,7 +12,8 @@ audit, from the tick it was due at to its answer.
 
 ``--baseline REV`` runs the same scene, in a second process started after this one, on the tree of
 git revision ``REV`` (``git archive`` into a temporary directory); both print one line each and
-``--out`` keeps both.
+``--out`` keeps both. With ``--turns N`` both trees run in processes of their own, in turns, N
+times each (on a shared machine runs one after the other meet its load at different moments).
 """
 
 from __future__ import annotations
@@ -150,16 +151,35 @@ def baseline(revision: str, argv: list[str]) -> dict[str, Any]:
     from scripts.bench_frames import tree_of
 
     with tree_of(revision) as tree:
-        env = dict(os.environ, FRT_BENCH_SOURCE=str(tree))
-        done = subprocess.run(
-            [sys.executable, str(Path(__file__).resolve()), *argv, "--json"],
-            env=env,
-            cwd=ROOT,
-            check=True,
-            capture_output=True,
-            text=True,
-        )
+        return run_on(tree, argv)
+
+
+def run_on(tree: Path, argv: list[str]) -> dict[str, Any]:
+    """This script's scene run in a process of its own on the checkout ``tree``."""
+    done = subprocess.run(
+        [sys.executable, str(Path(__file__).resolve()), *argv, "--json"],
+        env=dict(os.environ, FRT_BENCH_SOURCE=str(tree)),
+        cwd=ROOT,
+        check=True,
+        capture_output=True,
+        text=True,
+    )
     return json.loads(done.stdout.strip().splitlines()[-1])  # type: ignore[no-any-return]
+
+
+def in_turns(revision: str, turns: int, argv: list[str]) -> dict[str, Any]:
+    """The scene on this tree and on ``revision``'s, each in a process of its own, in turns
+    (the revision first), ``turns`` times each: runs one after the other on a shared machine
+    meet its load at different moments, and alternating spreads that over both."""
+    from scripts.bench_frames import tree_of
+
+    results: dict[str, Any] = {}
+    with tree_of(revision) as tree:
+        for k in range(turns):
+            for name, source in ((f"baseline {revision}", tree), ("working tree", SOURCE)):
+                results[f"{name}, turn {k + 1}"] = run_on(source, argv)
+                print(line(f"{name}, turn {k + 1}", results[f"{name}, turn {k + 1}"]), flush=True)
+    return results
 
 
 def parse(argv: list[str]) -> argparse.Namespace:
@@ -174,11 +194,38 @@ def parse(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--baseline", help="a git revision to run the same scene on afterwards")
     p.add_argument("--out", type=Path)
     p.add_argument("--json", action="store_true", help="print the result as one JSON line")
+    p.add_argument(
+        "--turns",
+        type=int,
+        default=0,
+        help="with --baseline: run both trees this many times each, in turns",
+    )
     return p.parse_args(argv)
+
+
+def without(argv: list[str], options: tuple[str, ...]) -> list[str]:
+    """``argv`` without ``options`` and their values (``--opt value`` or ``--opt=value``)."""
+    out: list[str] = []
+    skip = False
+    for arg in argv:
+        if skip:
+            skip = False
+        elif arg in options:
+            skip = True
+        elif not arg.startswith(tuple(f"{o}=" for o in options)):
+            out.append(arg)
+    return out
 
 
 def main(argv: list[str]) -> None:
     args = parse(argv)
+    if args.baseline and args.turns:
+        results = in_turns(
+            args.baseline, args.turns, without(argv, ("--baseline", "--turns", "--out"))
+        )
+        if args.out:
+            args.out.write_text(json.dumps(results, indent=2) + "\n")
+        return
     result = asyncio.run(drive(args))
     if args.json:
         print(json.dumps(result))

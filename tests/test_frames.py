@@ -387,30 +387,41 @@ def test_agents_refused_by_the_flow_are_answered_in_place_and_keep_their_state(
     _same_but_the_id(out["results"][0], one.json())
 
 
+def _frame_and_a_planner(services, prefix: str, t: float, n: int, order: list[str]):  # type: ignore[no-untyped-def]
+    """``n`` agents' observations at ``t`` (named ``prefix-i``), and a planner's check of every
+    agent half a second later that appends "check" to ``order`` once answered."""
+    from service.flows import checks
+    from service.wire.schemas import MultiCollisionCheckRequest, ObservationRequest
+
+    observations = [
+        (f"{prefix}-{i}", ObservationRequest.model_validate(observation(t, x=4.0 * i)))
+        for i in range(n)
+    ]
+    check = MultiCollisionCheckRequest.model_validate(
+        {"trajectory": [{"t": t + 0.5, "x": 0.0, "y": 30.0}], "mode": "time_indexed"}
+    )
+
+    async def a_planner() -> None:
+        await checks.check_agents_at_once(services, check, time.perf_counter())
+        order.append("check")
+
+    return observations, a_planner
+
+
 def test_a_check_arriving_during_a_frame_is_answered_between_its_stages(
     wide: TestClient, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """A check that arrives while a frame builds its agents' next states is answered before the
     frame's next group of agents (``STATES_PER_TURN``), not after the whole frame."""
-    from service.flows import agents, checks
-    from service.wire.schemas import MultiCollisionCheckRequest, ObservationRequest
+    from service.flows import agents
 
     services = wide.app.state.services
-    n = 2 * agents.STATES_PER_TURN + 1
-    observations = [
-        (f"turns-{i}", ObservationRequest.model_validate(observation(20.0, x=4.0 * i)))
-        for i in range(n)
-    ]
-    check = MultiCollisionCheckRequest.model_validate(
-        {"trajectory": [{"t": 20.5, "x": 0.0, "y": 30.0}], "mode": "time_indexed"}
-    )
     order: list[str] = []
+    observations, a_planner = _frame_and_a_planner(
+        services, "turns", 20.0, 2 * agents.STATES_PER_TURN + 1, order
+    )
     arriving: list[asyncio.Task] = []
     real_next_states = agents.next_states
-
-    async def a_planner() -> None:
-        await checks.check_agents_at_once(services, check, time.perf_counter())
-        order.append("check")
 
     def next_states_as_a_check_arrives(priors, inputs, *args):  # type: ignore[no-untyped-def]
         if not arriving:
@@ -486,24 +497,15 @@ def test_a_check_arriving_while_a_frame_is_stored_goes_before_its_answers(
     """A frame's last stretch is split too: a check that arrives while the frame's versions are
     stored and queued is answered before the answers of a frame of more than
     ``STATES_PER_TURN`` agents are built."""
-    from service.flows import agents, checks
-    from service.wire.schemas import MultiCollisionCheckRequest, ObservationRequest
+    from service.flows import agents
 
     services = wide.app.state.services
-    observations = [
-        (f"late-{i}", ObservationRequest.model_validate(observation(40.0, x=4.0 * i)))
-        for i in range(agents.STATES_PER_TURN + 1)
-    ]
-    check = MultiCollisionCheckRequest.model_validate(
-        {"trajectory": [{"t": 40.5, "x": 0.0, "y": 30.0}], "mode": "time_indexed"}
-    )
     order: list[str] = []
+    observations, a_planner = _frame_and_a_planner(
+        services, "late", 40.0, agents.STATES_PER_TURN + 1, order
+    )
     arriving: list[asyncio.Task] = []
     real_submitted = agents._submitted
-
-    async def a_planner() -> None:
-        await checks.check_agents_at_once(services, check, time.perf_counter())
-        order.append("check")
 
     def submitted_as_a_check_arrives(*args):  # type: ignore[no-untyped-def]
         arriving.append(asyncio.get_running_loop().create_task(a_planner()))

@@ -26,13 +26,13 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, fields
-from functools import lru_cache
 from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from reach.contract import HORIZON_S, U1_LIMIT, U2_LIMIT
+from reach.envelope_lp import max_lines_below, vertices
 from service.flows.bounds_rule import BoundsRule, distrust, half_width_factor, half_widths
 
 DEFAULT_LIMITS: tuple[float, float] = (U1_LIMIT, U2_LIMIT)
@@ -207,70 +207,6 @@ def _boundary_values(values: np.ndarray, reduce: Any) -> np.ndarray:
     return np.concatenate([values[..., :1], inner, values[..., -1:]], axis=-1)
 
 
-@dataclass(frozen=True)
-class _Vertices:
-    """What the vertex enumeration of :func:`_max_lines_below` needs from the abscissae w alone
-    (the same for the four lines of one fit, and for every prediction with the same steps):
-    the constraint matrix G and, per pair of constraints that intersect, their rows and det."""
-
-    G: np.ndarray
-    i: np.ndarray
-    j: np.ndarray
-    det: np.ndarray
-    gi0: np.ndarray
-    gi1: np.ndarray
-    gj0: np.ndarray
-    gj1: np.ndarray
-
-
-@lru_cache(maxsize=64)
-def _vertices(n: int, dt: float, horizon: float) -> _Vertices:
-    w = np.append(np.arange(n, dtype=np.float64) * dt, horizon) / horizon
-    G = np.vstack([np.column_stack([1.0 - w, w]), [[-1.0, 0.0], [0.0, -1.0]]])
-    i, j = np.triu_indices(G.shape[0], k=1)
-    det = G[i, 0] * G[j, 1] - G[i, 1] * G[j, 0]
-    keep = np.abs(det) > 1e-12
-    i, j, det = i[keep], j[keep], det[keep]
-    arrays = (G, i, j, det, G[i, 0], G[i, 1], G[j, 0], G[j, 1])
-    for array in arrays:
-        array.flags.writeable = False  # cached: shared by every later fit
-    return _Vertices(*arrays)
-
-
-def _max_lines_below(
-    v: _Vertices, w: np.ndarray, c: np.ndarray, floor: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Per row k of ``c`` [K, m]: start/end values (a_k, b_k) of the highest-area line below the
-    points (w_j, c_kj), with a_k, b_k >= floor_k.
-
-    The 2-variable linear programme ``max a + b`` s.t. ``(1 - w_j) a + w_j b <= c_kj``,
-    ``a >= floor_k``, ``b >= floor_k``, solved exactly by enumerating the vertices (intersections
-    of constraint pairs, ``v`` = :func:`_vertices` of ``w``) and keeping the best feasible one; all
-    K programmes at once (four per fit, every fit of a frame together), each row by the same
-    operations whatever the others. When the optimum is an edge (several lines touch the same
-    point at mid-horizon), the middle of that edge is taken. Any rounding excess over a c_kj is
-    finally subtracted, so the line never rises above a point.
-    """
-    h = np.concatenate([c, -np.stack([floor, floor], axis=1)], axis=1)  # [K, m + 2]
-    hi_, hj = h[:, v.i], h[:, v.j]  # [K, P]
-    a = (hi_ * v.gj1 - v.gi1 * hj) / v.det
-    b = (v.gi0 * hj - hi_ * v.gj0) / v.det
-    tol = 1e-10 * (1.0 + np.abs(h).max(axis=1, keepdims=True))  # [K, 1]
-    lhs = v.G[None, :, 0, None] * a[:, None, :] + v.G[None, :, 1, None] * b[:, None, :]
-    feasible = (lhs <= h[:, :, None] + tol[:, :, None]).all(axis=1)  # [K, P]
-    # Never empty: a = b = floor is a feasible vertex.
-    objective = np.where(feasible, a + b, -np.inf)
-    face = feasible & (objective >= objective.max(axis=1, keepdims=True) - tol)
-    slope = b - a
-    lo = np.where(face, slope, np.inf).argmin(axis=1)[:, None]
-    hi = np.where(face, slope, -np.inf).argmax(axis=1)[:, None]
-    a_opt = 0.5 * (np.take_along_axis(a, lo, 1) + np.take_along_axis(a, hi, 1))[:, 0]
-    b_opt = 0.5 * (np.take_along_axis(b, lo, 1) + np.take_along_axis(b, hi, 1))[:, 0]
-    line = (1.0 - w)[None, :] * a_opt[:, None] + w[None, :] * b_opt[:, None]
-    excess = np.maximum((line - c).max(axis=1), 0.0)
-    return a_opt - excess, b_opt - excess
-
-
 def _envelope(
     lo: np.ndarray, hi: np.ndarray, dt: float, horizon: float, lim: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -280,11 +216,11 @@ def _envelope(
     solved together."""
     b, n = lo.shape[:2]
     w = np.append(np.arange(n, dtype=np.float64) * dt, horizon) / horizon
-    v = _vertices(n, dt, horizon)
+    v = vertices(n, dt, horizon)
     rows = [_boundary_values(lo[:, :, d], np.minimum) for d in range(2)]
     rows += [-_boundary_values(hi[:, :, d], np.maximum) for d in range(2)]
     floors = -np.concatenate([lim, lim], axis=1)  # [B, 4]
-    a, e = _max_lines_below(v, w, np.stack(rows, axis=1).reshape(4 * b, -1), floors.reshape(-1))
+    a, e = max_lines_below(v, w, np.stack(rows, axis=1).reshape(4 * b, -1), floors.reshape(-1))
     a, e = a.reshape(b, 4), e.reshape(b, 4)
     start = np.stack([a[:, :2], -a[:, 2:]], axis=1)  # [B, min|max, dim]
     end = np.stack([e[:, :2], -e[:, 2:]], axis=1)

@@ -19,6 +19,7 @@ from models.runtime import ModelCard, ValueModel
 from models.value_fields import engine_for, network_decision
 from reach.batch import compile_batch_kernels
 from reach.engine import FRTEngine
+from reach.envelope_lp import compile_envelope_kernels
 from reach.field_stack import compile_field_kernels
 from reach.held import compile_held_kernel
 from reach.packed_rings import compile_ring_kernels
@@ -63,6 +64,7 @@ def load_model(
         compile_ring_kernels()
         compile_batch_kernels()
         compile_sweep_kernels()
+        compile_envelope_kernels()
     except Exception as exc:  # a missing or broken model must not stop the service
         log.error("model not loaded", extra={"model_path": str(path), "error": str(exc)})
         return f"model not loaded: {exc}"

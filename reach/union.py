@@ -143,11 +143,17 @@ class SettingRows:
             counts=counts,
         )
 
-    def sweeps(self, engine: FRTEngine) -> np.ndarray:
-        """Every row's outer bound's sweep boxes [R, steps, 4] (``outer_boxes``: compiled, free
-        of the GIL, so another thread may run it)."""
+    def sweeps(self, engine: FRTEngine, rows: slice = slice(None)) -> np.ndarray:
+        """The outer bounds' sweep boxes [R, steps, 4] of ``rows`` (every row by default;
+        ``outer_boxes``: compiled, free of the GIL, so other threads may run it, each row by
+        the same operations whatever the others)."""
         return outer_boxes(
-            self.v_starts, self.bounds, engine.horizon, engine.outer_steps, 8, engine.initial_set
+            self.v_starts[rows],
+            self.bounds[rows],
+            engine.horizon,
+            engine.outer_steps,
+            8,
+            engine.initial_set,
         )
 
     def sets(self, engine: FRTEngine, sweeps: np.ndarray) -> list[FRTSet]:

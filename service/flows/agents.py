@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -40,7 +40,11 @@ from service.flows.next_state import (
 )
 from service.flows.road import agent_assumptions, observed_on_map, relaxed_out, version_road
 from service.runtime.audit import Scored, ServedVersion, count_audited_many, score_many
-from service.runtime.conservative import cached_conservative, start_conservative
+from service.runtime.conservative import (
+    ConservativeBuild,
+    cached_conservative,
+    start_conservative,
+)
 from service.runtime.jobs import FRTJob
 from service.runtime.scheduler import FRTKey
 from service.runtime.services import Services
@@ -161,6 +165,7 @@ async def observe_many(
     jobs = {id(r[0]): services.job_for(r[0]) for r in built if not isinstance(r, APIError)}
     building = start_conservative(services, list(jobs.values()))  # type: ignore[index]
     held += await priority.observation_turn(priority.max_hold_s - held)
+    await building.propagated()  # checks answered meanwhile, from the states before the frame
     stored = await services.store.update_many(updates)
     audited = _submitted(services, stored_entries, stored, results, (building, jobs))
     if len(entries) > STATES_PER_TURN:
@@ -286,7 +291,7 @@ def _submitted(
     entries: list[_Entry],
     stored: list[AgentState | APIError],
     results: list[Applied | APIError | None],
-    first: tuple[Callable[[], list[FRTSet]], dict[int, FRTJob]],
+    first: tuple[ConservativeBuild, dict[int, FRTJob]],
 ) -> list[tuple[str, float, float, float]]:
     """The stored versions' exact sets submitted, their conservative sets built and recorded for
     the audit; the positions to audit (:func:`_audit_later`). ``first``: what finishes the

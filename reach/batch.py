@@ -9,8 +9,14 @@ from one compiled pass (``reach.distances.box_union_distances_until``) with the 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import itertools
+import os
+import queue
+import threading
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import partial
+from typing import TypeVar
 
 import numba
 import numpy as np
@@ -95,6 +101,78 @@ def _tube_indices(sets: list[BoxTubeSet], t_rel: list[np.ndarray | None], n: int
     )
 
 
+#: Threads a batch check's ring kernels run on (which release the GIL): the calling thread and
+#: ``KERNEL_THREADS - 1`` helper threads kept for them.
+KERNEL_THREADS = 2
+#: Probe-agent pairs below which a batch is measured on the calling thread alone: handing a share
+#: to another thread costs more than it saves.
+THREADED_PROBES = 20_000
+
+T = TypeVar("T")
+#: Where a job's outcome goes: None, or what it raised.
+Outcomes = queue.SimpleQueue[BaseException | None]
+#: What the helper threads run: a function, and where its outcome goes.
+_jobs: queue.SimpleQueue[tuple[Callable[[], None], Outcomes]] = queue.SimpleQueue()
+_helpers = 0
+_helpers_lock = threading.Lock()
+
+
+def _helper() -> None:
+    while True:
+        work, done = _jobs.get()
+        try:
+            work()
+        except BaseException as error:  # handed to the thread that waits for it
+            done.put(error)
+        else:
+            done.put(None)
+
+
+def _start_helpers(count: int) -> None:
+    global _helpers
+    with _helpers_lock:
+        while _helpers < count:
+            threading.Thread(target=_helper, name="frt-kernel", daemon=True).start()
+            _helpers += 1
+
+
+def _forget_helpers() -> None:
+    """In a forked child, which holds none of the parent's threads: helpers of its own."""
+    global _jobs, _helpers, _helpers_lock
+    _jobs, _helpers, _helpers_lock = queue.SimpleQueue(), 0, threading.Lock()
+
+
+os.register_at_fork(after_in_child=_forget_helpers)
+
+
+def run_on_threads(calls: Sequence[Callable[[], T]], threads: int) -> list[T]:
+    """``[call() for call in calls]``, on up to ``threads`` threads: the calling one and helper
+    threads kept for this, each taking the next call no thread has taken until none is left.
+    An exception of a call is raised once every thread has stopped."""
+    helpers = min(threads, len(calls)) - 1
+    if helpers <= 0:
+        return [call() for call in calls]
+    _start_helpers(helpers)
+    out: list[T | None] = [None] * len(calls)
+    taken = itertools.count()  # next() on it is atomic: each call is taken once
+
+    def work() -> None:
+        while (k := next(taken)) < len(calls):
+            out[k] = calls[k]()
+
+    done: Outcomes = queue.SimpleQueue()
+    for _ in range(helpers):
+        _jobs.put((work, done))
+    try:
+        work()
+    finally:
+        errors = [done.get() for _ in range(helpers)]
+    for error in errors:
+        if error is not None:
+            raise error
+    return out  # type: ignore[return-value]
+
+
 @dataclass(frozen=True)
 class Reduction:
     """What a batch check reads of each agent's distances: per trajectory (points
@@ -114,16 +192,19 @@ def trajectory_surrogates_of(
     t_rel: Sequence[np.ndarray | None],
     reduction: Reduction,
     places: Sequence[tuple[np.ndarray, np.ndarray] | None] | None = None,
+    threads: int | None = None,
 ) -> list[np.ndarray]:
     """Per set, surrogates of its :meth:`FRTSet.clearance` values (``reach.packed_rings``): the
     same least value and first value below the set's threshold per trajectory, the signed
     distances computed only where those need them (with ``every_point``, every one of them, by
     the same kernel). The kernels move the world points into each set's human frame by the
     arithmetic of ``reach.frames.human_frames``. ``places[a]``, where given, is
-    ``tubes_of(sets[a], t_rel[a])``, found already."""
+    ``tubes_of(sets[a], t_rel[a])``, found already. The sets are measured on up to ``threads``
+    threads (:func:`run_on_threads`; None: :data:`KERNEL_THREADS` from :data:`THREADED_PROBES`
+    probe-set pairs, else one), each set's values by one thread alone: the same on any number."""
     columns = point_columns(np.asarray(xy_world, dtype=np.float64).reshape(-1, 2))
     n = len(columns[0])
-    out = []
+    calls = []
     for a, (frt, t) in enumerate(zip(sets, t_rel, strict=True)):
         known = None if places is None else places[a]
         if t is None:
@@ -135,10 +216,11 @@ def trajectory_surrogates_of(
         packed = frt.packed_tubes(tuple(tubes.tolist()))
         pose = (frt.pose.x, frt.pose.y, frt.pose.heading)
         if reduction.every_point:
-            out.append(signed_distances_packed(packed, which, columns, pose))
+            calls.append(partial(signed_distances_packed, packed, which, columns, pose))
             continue
-        out.append(
-            trajectory_surrogates(
+        calls.append(
+            partial(
+                trajectory_surrogates,
                 packed,
                 which,
                 columns,
@@ -148,7 +230,9 @@ def trajectory_surrogates_of(
                 pose,
             )
         )
-    return out
+    if threads is None:
+        threads = KERNEL_THREADS if n * len(calls) >= THREADED_PROBES else 1
+    return run_on_threads(calls, threads)
 
 
 def tubes_of(frt: FRTSet, t_rel: np.ndarray, group: int = 1) -> tuple[np.ndarray, np.ndarray]:

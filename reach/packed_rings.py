@@ -6,7 +6,7 @@ crosses the rings an odd number of times (inside): the same quantity as
 ``reach.distances.signed_distance`` (GEOS), computed without a geometry object per point. The
 kernels take world points and the human's pose and move each point to the human frame by the
 arithmetic of ``reach.frames.human_frames`` (the same products and sums in the same order: the same
-values).
+values). They release the GIL: several polygons' packs can be measured on threads at once.
 
 Two lower bounds of the signed distance d(p) to a polygon K cost a few operations each:
 
@@ -232,7 +232,7 @@ def _to_frame(x0, y0, c, s, x, y):
     return c * dx + s * dy, -s * dx + c * dy
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _signed(segments, segment_starts, chunk_boxes, chunk_starts, g, x, y):
     """Signed distance from (x, y) to polygon g (+inf if it has no segments). A chunk whose box is
     no nearer than the nearest segment found, and that a ray from the point towards +x cannot
@@ -273,7 +273,7 @@ def _signed(segments, segment_starts, chunk_boxes, chunk_starts, g, x, y):
     return -distance if inside else distance
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _segment_distance2(segments, e, x, y):
     """Squared distance from (x, y) to segment e."""
     x0, y0, x1, y1 = segments[e, 0], segments[e, 1], segments[e, 2], segments[e, 3]
@@ -307,7 +307,7 @@ def _support_bound(supports, directions, g, x, y):
     return best - SUPPORT_MARGIN * (1.0 + abs(x) + abs(y))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _all_signed(
     segments, segment_starts, chunk_boxes, chunk_starts, x0, y0, c, s, xs, ys, which, out
 ):
@@ -398,7 +398,7 @@ def _least(geometry, xs, ys, which, group, a, b, exact, value, out):
     return least
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _surrogates(geometry, x0, y0, c, s, world_x, world_y, which, spans, threshold, out):
     begins, ends, group = spans
     xs = np.empty(len(world_x))

@@ -10,7 +10,14 @@ import pytest
 import reach.batch
 from models.runtime import ValueModel
 from models.value_fields import engine_for
-from reach.batch import box_clearances, trajectory_reductions, tube_clearances
+from reach.batch import (
+    Reduction,
+    box_clearances,
+    run_on_threads,
+    trajectory_reductions,
+    trajectory_surrogates_of,
+    tube_clearances,
+)
 from reach.footprint import disc_cover, footprint_distances
 from reach.frames import Pose
 
@@ -134,3 +141,50 @@ def test_tubes_of_runs_of_equal_times_are_those_of_every_time(analytic_model_pat
     whole = reach.batch.tubes_of(frt, times)
     runs = reach.batch.tubes_of(frt, times, 6)
     assert np.array_equal(whole[0], runs[0]) and np.array_equal(whole[1], runs[1])
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_batch_measured_on_threads_equals_it_on_one(analytic_model_path: Path, seed: int) -> None:
+    """Each set's surrogates are the same on one thread or several, bit for bit, and their least
+    per trajectory is that of the set's own clearances (time-indexed, random sets, points and
+    thresholds; with and without footprint discs)."""
+    engine = engine_for(ValueModel.load(analytic_model_path))
+    rng = np.random.default_rng(seed)
+    sets = random_sets(engine.exact, rng, 7)
+    lengths = rng.integers(1, 30, size=40)
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    xy = rng.uniform(-25, 25, size=(int(lengths.sum()), 2))
+    times = np.concatenate([np.sort(rng.uniform(0.0, 3.5, n)) for n in lengths])
+    t_rel = [times - rng.choice([0.0, 0.3]) for _ in sets]
+    for group, every_point in ((1, False), (1, True), (3, False)):
+        probes = np.repeat(xy, group, axis=0) + rng.normal(0.0, 0.5, (len(xy) * group, 2))
+        probe_times = [np.repeat(t, group) for t in t_rel]
+        reduction = Reduction(
+            starts, rng.uniform(-1.0, 4.0, len(sets)).tolist(), group, every_point
+        )
+        one = trajectory_surrogates_of(sets, probes, probe_times, reduction, threads=1)
+        for threads in (2, 3):
+            many = trajectory_surrogates_of(sets, probes, probe_times, reduction, threads=threads)
+            assert all(np.array_equal(a, b) for a, b in zip(one, many, strict=True))
+        for frt, t, values in zip(sets, probe_times, one, strict=True):
+            own = frt.clearance(probes, t).reshape(-1, group).min(axis=1)
+            least = np.minimum.reduceat(values.reshape(-1, group).min(axis=1), starts)
+            np.testing.assert_allclose(least, np.minimum.reduceat(own, starts), atol=1e-9)
+
+
+def test_calls_on_threads_are_each_made_once_and_raise_what_they_raise() -> None:
+    made: list[int] = []
+
+    def call(k: int) -> int:
+        made.append(k)
+        return k * k
+
+    assert run_on_threads([lambda k=k: call(k) for k in range(50)], 2) == [k * k for k in range(50)]
+    assert sorted(made) == list(range(50))
+    assert run_on_threads([], 2) == [] and run_on_threads([lambda: 1], 4) == [1]
+
+    def fails() -> int:
+        raise ValueError("a call's")
+
+    with pytest.raises(ValueError, match="a call's"):
+        run_on_threads([lambda: 1, fails, lambda: 2], 2)

@@ -252,6 +252,43 @@ def tubes_of(frt: FRTSet, t_rel: np.ndarray, group: int = 1) -> tuple[np.ndarray
     return frt.tubes_present(frt.tube_indices(t_rel))
 
 
+def tubes_of_many(
+    sets: Sequence[FRTSet], t_rel: Sequence[np.ndarray], group: int = 1
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``[tubes_of(s, t, group) for s, t in zip(sets, t_rel)]``, found once for the sets that keep
+    :class:`FRTSet`'s tube definitions on one grid of slices and have equal times (the agents of
+    one frame: the same points, the same time of observation), the later ones given the first's
+    arrays (the kernels only read them)."""
+    out = []
+    found: list[tuple[tuple[float, float, int], np.ndarray, tuple[np.ndarray, np.ndarray]]] = []
+    for frt, t in zip(sets, t_rel, strict=True):
+        kind = type(frt)
+        if kind.tube_indices is not FRTSet.tube_indices or (
+            kind.tubes_present is not FRTSet.tubes_present
+        ):
+            out.append(tubes_of(frt, t, group))
+            continue
+        grid = (frt.slice_dt, frt.horizon_s, frt.n_slices)
+        times = np.asarray(t)
+        same = (
+            place
+            for key, seen, place in found
+            if key == grid and (seen is times or _equal_times(seen, times))
+        )
+        place = next(same, None)
+        if place is None:
+            place = tubes_of(frt, times, group)
+            found.append((grid, times, place))
+        out.append(place)
+    return out
+
+
+def _equal_times(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two arrays of times are equal element by element (the first elements compared
+    first: times after different observations differ there)."""
+    return a.shape == b.shape and (a.size == 0 or a.flat[0] == b.flat[0]) and np.array_equal(a, b)
+
+
 def compile_batch_kernels() -> None:
     """Compile (or load from numba's cache) this module's kernels before a check needs them: a
     first call takes a few hundred milliseconds, which a check's deadline cannot hold."""

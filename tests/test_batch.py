@@ -17,9 +17,12 @@ from reach.batch import (
     trajectory_reductions,
     trajectory_surrogates_of,
     tube_clearances,
+    tubes_of,
+    tubes_of_many,
 )
 from reach.footprint import disc_cover, footprint_distances
 from reach.frames import Pose
+from reach.sets import FRTSet
 
 BOUNDS = np.array([-0.3, -2.0, -0.2, -1.0, 0.3, 1.5, 0.25, 2.0])
 
@@ -188,3 +191,27 @@ def test_calls_on_threads_are_each_made_once_and_raise_what_they_raise() -> None
 
     with pytest.raises(ValueError, match="a call's"):
         run_on_threads([lambda: 1, fails, lambda: 2], 2)
+
+
+class OwnIndices(FRTSet):
+    """A set with tube indices of its own: its tubes are found for it alone."""
+
+    def tube_indices(self, t_rel: np.ndarray) -> np.ndarray:
+        return np.zeros(np.asarray(t_rel).size, dtype=int)
+
+
+@pytest.mark.parametrize("group", [1, 4])
+def test_tubes_found_once_for_equal_times_are_each_sets_own(group: int) -> None:
+    """Sets on one grid with equal times share their tubes; every set's are its own."""
+    rng = np.random.default_rng(9)
+    grids = [(0.1, 3.0, 31), (0.1, 3.0, 31), (0.25, 3.0, 13), (0.1, 3.0, 31), (0.1, 3.0, 31)]
+    sets: list[FRTSet] = [FRTSet(Pose(0.0, 0.0, 0.0), *g, conservative=False) for g in grids]
+    sets.append(OwnIndices(Pose(0.0, 0.0, 0.0), 0.1, 3.0, 31, conservative=False))
+    times = np.repeat(rng.uniform(-0.5, 3.5, 50), group)
+    t_rel = [times, times.copy(), times, times - 0.3, times, times]
+    found = tubes_of_many(sets, t_rel, group)
+    for frt, t, (tubes, which) in zip(sets, t_rel, found, strict=True):
+        expected = tubes_of(frt, t, group)
+        assert np.array_equal(tubes, expected[0]) and np.array_equal(which, expected[1])
+    assert found[1] is found[0] and found[4] is found[0]
+    assert found[2] is not found[0] and found[3] is not found[0] and found[5] is not found[0]

@@ -32,7 +32,7 @@ from reach.batch import (
     box_clearances,
     trajectory_surrogates_of,
     tube_clearances,
-    tubes_of,
+    tubes_of_many,
 )
 from reach.sets import FRTSet
 from reach.union import box_members
@@ -343,9 +343,11 @@ def _exact_distances(
     plain = [i for i in pending if chosen[i].clearance_from_tubes]
     plain_times = {i: t_rel[i] for i in plain}
     # Each time-indexed agent's tubes and its points' places among them, found once (once a
-    # point for a footprint's discs, which share its time).
+    # point for a footprint's discs, which share its time; once for agents with the same times).
     group = 1 if reduction is None else reduction.group
-    places = {i: tubes_of(chosen[i], t, group) for i, t in plain_times.items() if t is not None}
+    timed = [i for i, t in plain_times.items() if t is not None]
+    found = tubes_of_many([chosen[i] for i in timed], [plain_times[i] for i in timed], group)
+    places = dict(zip(timed, found, strict=True))
     coarse = _fit_tubes_to_deadline(
         services,
         {i: chosen[i] for i in plain},

@@ -382,6 +382,39 @@ def test_demanded_agents_sets_start_before_the_others(scheduler: FRTScheduler) -
     assert starts.labels("background")._value.get() >= 3
 
 
+def test_the_sets_of_agents_a_trajectory_met_start_before_the_other_demanded_ones(
+    scheduler: FRTScheduler,
+) -> None:
+    """Among demanded agents, those whose sets a check's trajectory met go first (newest first
+    among them), then the ones it only came near, then the rest."""
+    scheduler.demand = ExactDemand(hold_s=60.0, size=16)
+    scheduler.demand.note(["near-1", "near-2"])
+    scheduler.demand.note(["met-1", "met-2"], met=True)
+    gate = threading.Event()
+    order: list[str] = []
+    scheduler.submit(key("busy", 1), lambda: gate.wait(5))
+    for agent in ("met-1", "near-1", "far-1", "met-2", "near-2"):
+        scheduler.submit(key(agent, 1), lambda agent=agent: order.append(agent))
+    last = scheduler.submit(key("far-2", 1), lambda: order.append("far-2"))
+    gate.set()
+    last.result(5)
+    scheduler.submit(key("far-1", 1), lambda: None).result(5)
+    assert order == ["met-2", "met-1", "near-2", "near-1", "far-2", "far-1"]
+
+
+def test_a_met_agent_ranks_above_a_near_one_and_both_expire() -> None:
+    demand = ExactDemand(hold_s=1.0, size=4)
+    demand.note(["near"], now=10.0)
+    demand.note(["met"], now=10.0, met=True)
+    assert (demand.rank("met", now=10.5), demand.rank("near", now=10.5)) == (2, 1)
+    assert demand.wants("met", now=10.5) and not demand.met("near", now=10.5)
+    assert demand.rank("met", now=11.0) == demand.rank("near", now=11.0) == 0
+    demand.note(["met"], now=12.0)  # near again, not met: its met mark has expired
+    assert demand.rank("met", now=12.5) == 1
+    demand.forget("met")
+    assert demand.rank("met", now=12.5) == 0
+
+
 def test_demand_expires_and_is_bounded() -> None:
     demand = ExactDemand(hold_s=1.0, size=2)
     demand.note(["a"], now=10.0)

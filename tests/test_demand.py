@@ -111,9 +111,15 @@ def test_an_answer_near_a_set_demands_it_whichever_set_answered() -> None:
         answer("exact-near", False, False),
         answer("exact-far", False, False),
         answer("meets", True, True),  # conservative: its exact set decides
+        answer("exact-meets", False, True),
     ]
-    least = np.array([margin - 0.5, margin + 0.5, margin - 0.5, margin + 0.5, -1.0])
+    least = np.array([margin - 0.5, margin + 0.5, margin - 0.5, margin + 0.5, -1.0, -0.5])
     services = _Services()
     _note_demand(services, results, least)  # type: ignore[arg-type]
     wanted = {r.agent_id for r in results if services.demand.wants(r.agent_id)}
-    assert wanted == {"clear-near", "exact-near", "meets"}
+    assert wanted == {"clear-near", "exact-near", "meets", "exact-meets"}
+    # The trajectory met these two sets: their next sets go before the other demanded agents'.
+    assert {r.agent_id for r in results if services.demand.met(r.agent_id)} == {
+        "meets",
+        "exact-meets",
+    }

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -199,11 +200,13 @@ def _updates(
 
 
 def _demanded_first(services: Services, entries: list[_Entry]) -> list[_Entry]:
-    """``entries`` with the demanded agents' first (``service.runtime.demand``), else in order."""
+    """``entries`` with the demanded agents' first, those a trajectory met before the others
+    (``ExactDemand.rank``), else in order."""
     demand = services.scheduler.demand
     if demand is None:
         return entries
-    return sorted(entries, key=lambda e: not demand.wants(e.agent_id))
+    now = time.perf_counter()
+    return sorted(entries, key=lambda e: -demand.rank(e.agent_id, now))
 
 
 def _start_demanded(

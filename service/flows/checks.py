@@ -601,18 +601,23 @@ def _note_demand(
     would change or nearly (``service.runtime.demand``): a conservative verdict, or a least
     clearance below ``exact_demand_margin_m``, from the exact set or (a lower bound of the
     exact set's) from the conservative one: a trajectory that passes that close to an agent's
-    set is likely to meet it at the next check, and its exact set is then under way."""
+    set is likely to meet it at the next check, and its exact set is then under way. An agent
+    whose set the trajectory met (a collision, from either set) is noted as met: its next
+    sets go first."""
     verdicts = Counter(r.verdict for r in results)
     for verdict, count in verdicts.items():
         services.metrics.check_verdicts.labels(verdict).inc(count)
     margin = services.settings.exact_demand_margin_m
-    near = [
-        r.agent_id
-        for r, clearance in zip(results, least.tolist(), strict=True)
-        if r.verdict == "conservative" or clearance < margin
-    ]
+    near, met = [], []
+    for r, clearance in zip(results, least.tolist(), strict=True):
+        if r.collision:
+            met.append(r.agent_id)
+        elif r.verdict == "conservative" or clearance < margin:
+            near.append(r.agent_id)
     if near:
         services.demand.note(near)
+    if met:
+        services.demand.note(met, met=True)
 
 
 async def check_agent(

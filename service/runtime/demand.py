@@ -2,11 +2,13 @@
 
 A check whose trajectory clears an agent's conservative set has the exact set's verdict without it
 (the exact set lies inside); an exact set changes an answer only for an agent whose set a planner's
-trajectory comes near. Checks note such agents here (``service.flows.checks``: a conservative
-verdict, or a clearance from the exact set below the margin) for ``hold_s`` seconds; the scheduler
-starts their queued sets before any other (``service.runtime.scheduler``), and the rest as the
-workers allow: while any agent is demanded, the others' sets keep off one worker, so that a
-demanded agent's new version starts as soon as it is submitted.
+trajectory comes near. Checks note such agents here (``service.flows.checks``: a clearance from
+either set below the margin) for ``hold_s`` seconds, and among them the agents a trajectory met
+(a collision answered), whose next answers are conservative until their exact sets land: the
+scheduler starts those agents' queued sets first, then the other demanded agents', then the rest
+as the workers allow (``service.runtime.scheduler``): while any agent is demanded, the others'
+sets keep off one worker, so that a demanded agent's new version starts as soon as it is
+submitted.
 """
 
 from __future__ import annotations
@@ -24,23 +26,42 @@ class ExactDemand:
         self.hold_s = hold_s
         self._size = size
         self._until: dict[str, float] = {}
+        #: The agents a trajectory met, each until a time (a subset of :attr:`_until`'s).
+        self._met_until: dict[str, float] = {}
         self._lock = threading.Lock()
 
-    def note(self, agent_ids: Iterable[str], now: float | None = None) -> None:
-        """Demand ``agent_ids`` from ``now`` for :attr:`hold_s` seconds."""
+    def note(self, agent_ids: Iterable[str], now: float | None = None, met: bool = False) -> None:
+        """Demand ``agent_ids`` from ``now`` for :attr:`hold_s` seconds; ``met``: a trajectory
+        met their sets (they go first, :meth:`met`)."""
         until = (time.perf_counter() if now is None else now) + self.hold_s
         with self._lock:
             for agent_id in agent_ids:
                 self._until.pop(agent_id, None)  # re-inserted: the dict stays in expiry order
                 self._until[agent_id] = until
-            while len(self._until) > self._size:
-                self._until.pop(next(iter(self._until)))
+                if met:
+                    self._met_until.pop(agent_id, None)
+                    self._met_until[agent_id] = until
+            for noted in (self._until, self._met_until):
+                while len(noted) > self._size:
+                    noted.pop(next(iter(noted)))
 
     def wants(self, agent_id: str, now: float | None = None) -> bool:
         """Whether a check came near ``agent_id`` within the last :attr:`hold_s` seconds."""
         with self._lock:
             until = self._until.get(agent_id)
         return until is not None and (time.perf_counter() if now is None else now) < until
+
+    def met(self, agent_id: str, now: float | None = None) -> bool:
+        """Whether a check's trajectory met ``agent_id``'s set within the last :attr:`hold_s`
+        seconds."""
+        with self._lock:
+            until = self._met_until.get(agent_id)
+        return until is not None and (time.perf_counter() if now is None else now) < until
+
+    def rank(self, agent_id: str, now: float | None = None) -> int:
+        """2 for an agent a trajectory met, 1 for one only came near, else 0."""
+        now = time.perf_counter() if now is None else now
+        return 2 if self.met(agent_id, now) else int(self.wants(agent_id, now))
 
     def active(self, now: float | None = None) -> bool:
         """Whether any agent is demanded (the last to expire is the last in the dict)."""
@@ -51,3 +72,4 @@ class ExactDemand:
     def forget(self, agent_id: str) -> None:
         with self._lock:
             self._until.pop(agent_id, None)
+            self._met_until.pop(agent_id, None)

@@ -422,18 +422,20 @@ class FRTScheduler:
 
     def _next_queued(self) -> FRTKey | None:
         """Take the next queued set (lock held, queue not empty): of the demanded agents'
-        (:attr:`demand`) if any is queued, else of all; among them the newest, or the oldest once
-        it has waited ``EXACT_OLDEST_AFTER_S``. None while agents are demanded, none of theirs is
-        queued and the others' sets hold every worker but one (kept for the demanded ones)."""
+        (:attr:`demand`) if any is queued (of those a trajectory met, if any is), else of all;
+        among them the newest, or the oldest once it has waited ``EXACT_OLDEST_AFTER_S``. None
+        while agents are demanded, none of theirs is queued and the others' sets hold every
+        worker but one (kept for the demanded ones)."""
         demand = self.demand
         slots = list(self._queue)
         if demand is not None:
             wanted = [s for s in slots if self._queue[s].agent_id and demand.wants(s)]
             if not wanted and len(self._background) >= self._background_cap(demand):
                 return None
+            met = [s for s in wanted if demand.met(s)]
             priority = "demanded" if wanted else "background"
             self._metrics.exact_set_starts.labels(priority).inc()
-            slots = wanted or slots
+            slots = met or wanted or slots
         oldest = self._queue[slots[0]]
         waited = time.perf_counter() - self._pending[oldest].submitted
         key = self._queue.pop(slots[0] if waited >= EXACT_OLDEST_AFTER_S else slots[-1])

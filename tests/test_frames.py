@@ -520,3 +520,40 @@ def test_a_check_arriving_while_a_frame_is_stored_goes_before_its_answers(
     monkeypatch.setattr(agents, "_submitted", submitted_as_a_check_arrives)
     asyncio.run(frame_and_check())
     assert order == ["stored", "check", "frame"]
+
+
+def test_agents_a_trajectory_met_are_stored_before_the_rest_of_a_frame_is_built(
+    wide: TestClient, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A large frame's agents whose sets a planner's trajectory met are applied on their own
+    first (stored, their sets under way), then the others; the answers keep the entries' order
+    and are those of the frame applied in one pass."""
+    from service.flows import agents, frames
+    from service.wire.schemas import FrameRequest
+
+    services = wide.app.state.services
+    n = agents.STATES_PER_TURN + 3
+
+    def frame_of(prefix: str) -> FrameRequest:
+        return FrameRequest.model_validate(
+            {"timestamp": 40.0, "agents": [entry(f"{prefix}-{i}", 4.0 * i) for i in range(n)]}
+        )
+
+    plain = asyncio.run(frames.apply_frame(services, frame_of("one-pass")))
+    met = {"met-first-5", "met-first-20"}
+    services.demand.note(sorted(met), met=True)
+    stored: list[list[str]] = []
+    real_update = services.store.update_many
+
+    async def update_many(updates):  # type: ignore[no-untyped-def]
+        stored.append(sorted(u[0] for u in updates))
+        return await real_update(updates)
+
+    monkeypatch.setattr(services.store, "update_many", update_many)
+    split = asyncio.run(frames.apply_frame(services, frame_of("met-first")))
+    assert stored == [sorted(met), sorted(f"met-first-{i}" for i in range(n) if i not in (5, 20))]
+    assert [r.agent_id for r in split.results] == [f"met-first-{i}" for i in range(n)]
+    for got, want in zip(split.results, plain.results, strict=True):
+        assert got.model_dump(exclude={"agent_id", "frt_ready"}) == want.model_dump(
+            exclude={"agent_id", "frt_ready"}
+        )

@@ -119,13 +119,37 @@ def _checked(
     return [(i, a, o) for (i, a, _), o in zip(bodies, observations, strict=True)]
 
 
+async def _met_first(
+    services: Services, observations: list[tuple[str, ObservationRequest]]
+) -> list[agents.Applied | APIError]:
+    """``agents.observe_many`` of the agents whose sets a planner's trajectory met
+    (``ExactDemand.met``) on their own, then of the others: the met agents' new versions are
+    stored, and their exact sets under way, before the rest of a large frame is built, so that
+    the checks answered meanwhile read those versions rather than the ones whose sets the new
+    versions replaced in the queue."""
+    demand = services.scheduler.demand
+    if demand is None or len(observations) <= agents.STATES_PER_TURN:
+        return await agents.observe_many(services, observations)
+    met = [demand.met(agent_id) for agent_id, _ in observations]
+    if all(met) or not any(met):
+        return await agents.observe_many(services, observations)
+    first = await agents.observe_many(
+        services, [o for o, m in zip(observations, met, strict=True) if m]
+    )
+    rest = await agents.observe_many(
+        services, [o for o, m in zip(observations, met, strict=True) if not m]
+    )
+    order = iter(first), iter(rest)
+    return [next(order[0] if m else order[1]) for m in met]
+
+
 async def apply_frame(services: Services, request: FrameRequest) -> FrameResponse:
     """Apply every valid entry of ``request``; one result per entry, in order."""
     check_length("agents", request.agents, services.settings.max_agents_per_frame)
     services.require_engine()
     results: list[ObservationResponse | FrameRejection | None] = [None] * len(request.agents)
     valid = _entries(request, results)
-    applied = await agents.observe_many(services, [(a, o) for _, a, o in valid])
+    applied = await _met_first(services, [(a, o) for _, a, o in valid])
     for (index, agent_id, observation), result in zip(valid, applied, strict=True):
         if isinstance(result, APIError):
             results[index] = _rejection(index, agent_id, result)

@@ -102,8 +102,10 @@ def _tube_indices(sets: list[BoxTubeSet], t_rel: list[np.ndarray | None], n: int
 
 
 #: Threads a batch check's ring kernels run on (which release the GIL): the calling thread and
-#: ``KERNEL_THREADS - 1`` helper threads kept for them.
-KERNEL_THREADS = 2
+#: ``KERNEL_THREADS - 1`` helper threads kept for them; two where the process may use two CPUs.
+KERNEL_THREADS = min(
+    2, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+)
 #: Probe-agent pairs below which a batch is measured on the calling thread alone: handing a share
 #: to another thread costs more than it saves.
 THREADED_PROBES = 20_000

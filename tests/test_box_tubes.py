@@ -109,3 +109,16 @@ def test_the_compiled_sweeps_are_the_array_propagations_bit_for_bit() -> None:
     sides = (p.x[0], np.minimum), (p.x[1], np.maximum), (p.y[0], np.minimum), (p.y[1], np.maximum)
     reference = np.stack([window(values, reduce) for values, reduce in sides], axis=2)
     assert np.array_equal(outer_boxes(v, bounds, 3.0, steps, substeps), reference)
+
+
+def test_a_settings_rows_swept_in_parts_are_the_rows_swept_together() -> None:
+    """``SettingRows.sweeps`` of slices of the rows (a frame's rows split between threads,
+    ``service.runtime.conservative``) put together are the sweeps of all of them, bit for bit."""
+    from reach.union import SettingRows
+
+    engine = FRTEngine()
+    poses, v, bounds = _settings(23, 5)
+    rows = SettingRows.of(poses[:9], v[:9], [bounds[:3], *bounds[3:11]])
+    whole = rows.sweeps(engine)
+    parts = [rows.sweeps(engine, part) for part in (slice(0, 6), slice(6, 7), slice(7, None))]
+    assert len(whole) == 11 and np.array_equal(np.concatenate(parts), whole)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import itertools
+import os
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -30,9 +31,11 @@ if TYPE_CHECKING:
 #: Rows of bounds (settings, a multi-modal one's modes each) from which the outer bounds are
 #: propagated on the thread.
 THREAD_ROWS = 16
-#: Threads a frame's rows are split between (the machine's cores, which the exact-set workers
-#: yield to: they run at the idle policy).
-PROPAGATION_THREADS = 2
+#: Threads a frame's rows are split between: two where the process may use two CPUs (the
+#: exact-set workers yield them: they run below the server), else one.
+PROPAGATION_THREADS = min(
+    2, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+)
 _PROPAGATION = ThreadPoolExecutor(
     max_workers=PROPAGATION_THREADS, thread_name_prefix="frt-conservative"
 )

@@ -48,7 +48,7 @@ class ConservativeBuild:
     threads without holding the event loop, so that finishing then does not wait."""
 
     finish: Callable[[], list[FRTSet]]
-    propagating: tuple[Future[tuple[object, float]], ...] = ()
+    propagating: tuple[Future[tuple[np.ndarray, float]], ...] = ()
 
     def __call__(self) -> list[FRTSet]:
         return self.finish()

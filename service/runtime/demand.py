@@ -59,7 +59,7 @@ class ExactDemand:
         return until is not None and (time.perf_counter() if now is None else now) < until
 
     def rank(self, agent_id: str, now: float | None = None) -> int:
-        """2 for an agent a trajectory met, 1 for one only came near, else 0."""
+        """2 for an agent a trajectory met, 1 for one a trajectory only came near, else 0."""
         now = time.perf_counter() if now is None else now
         return 2 if self.met(agent_id, now) else int(self.wants(agent_id, now))
 

@@ -603,14 +603,16 @@ def _note_demand(
     exact set's) from the conservative one: a trajectory that passes that close to an agent's
     set is likely to meet it at the next check, and its exact set is then under way. An agent
     whose set the trajectory met (a collision, from either set) is noted as met: its next
-    sets go first."""
+    sets go first. A batch's collision is of some candidate among many, which the planner may
+    not take: its agents are demanded, not met."""
     verdicts = Counter(r.verdict for r in results)
     for verdict, count in verdicts.items():
         services.metrics.check_verdicts.labels(verdict).inc(count)
     margin = services.settings.exact_demand_margin_m
     near, met = [], []
     for r, clearance in zip(results, least.tolist(), strict=True):
-        if r.collision:
+        batch = r.trajectories is not None or r.trajectory_columns is not None
+        if r.collision and not batch:
             met.append(r.agent_id)
         elif r.verdict == "conservative" or clearance < margin:
             near.append(r.agent_id)

@@ -8,7 +8,9 @@ planners each checking a 20-point, 2 s time-indexed trajectory against every age
 (``service.flows.checks.check_agents_at_once``, deadline ``--deadline-ms``). The frames' bodies
 are made before the clock starts. Without HTTP and without a load harness beside it, what is
 measured is the event loop's own scheduling: how long a check waits behind frames and their
-audit, from the tick it was due at to its answer.
+audit, from the tick it was due at to its answer. The share of answers exact or decision-exact
+is printed with, beside it, the share whose verdict is known: those and the conservative
+collisions a reached position witnesses (``collision_witnessed``).
 
 ``--baseline REV`` runs the same scene, in a second process started after this one, on the tree of
 git revision ``REV`` (``git archive`` into a temporary directory); both print one line each and
@@ -105,6 +107,10 @@ async def drive(args: argparse.Namespace) -> dict[str, Any]:
             check_s.append(time.monotonic() - due)
             for result in answer.results:
                 verdicts[result.verdict] = verdicts.get(result.verdict, 0) + 1
+                if result.verdict == "conservative" and getattr(
+                    result, "collision_witnessed", False
+                ):
+                    verdicts["witnessed"] = verdicts.get("witnessed", 0) + 1
 
     lanes = [-20.0 + 40.0 * i / max(args.planners - 1, 1) for i in range(args.planners)]
     loop_cpu, process_cpu = time.thread_time(), time.process_time()
@@ -118,7 +124,7 @@ async def drive(args: argparse.Namespace) -> dict[str, Any]:
 def summary(
     frame_s: list[float], check_s: list[float], verdicts: dict[str, int], deadline_ms: float
 ) -> dict[str, Any]:
-    answers = sum(verdicts.values())
+    answers = sum(n for verdict, n in verdicts.items() if verdict != "witnessed")
     settled = verdicts.get("exact", 0) + verdicts.get("decision_exact", 0)
     return {
         "frames": len(frame_s),
@@ -128,6 +134,8 @@ def summary(
         "checks_over_deadline": sum(s * 1e3 > deadline_ms for s in check_s),
         "verdicts": verdicts,
         "exact_or_decision_exact": settled / answers if answers else None,
+        # A conservative collision a reached position witnesses has the exact set's verdict.
+        "verdict_known": (settled + verdicts.get("witnessed", 0)) / answers if answers else None,
     }
 
 
@@ -139,7 +147,8 @@ def line(name: str, result: dict[str, Any]) -> str:
         f"{result['checks']} check-alls from their tick p50/p90/p99 "
         f"{c['0.5']:.1f}/{c['0.9']:.1f}/{c['0.99']:.1f} ms, "
         f"{result['checks_over_deadline']} over the deadline; exact or decision-exact "
-        f"{100 * share:.2f} %; CPU s per s: the event loop's thread "
+        f"{100 * share:.2f} % ({100 * result.get('verdict_known', share):.2f} % with the "
+        "witnessed collisions); CPU s per s: the event loop's thread "
         f"{result['cpu_per_s'][0]:.2f}, the process {result['cpu_per_s'][1]:.2f}"
         if share is not None
         else "no answers"

@@ -241,6 +241,10 @@ class CollisionCheck(CollisionAnswer):
     #: "exact" (from the exact set), "decision_exact" (from a set containing it and clear of it:
     #: the exact set's verdict too) or "conservative" (that set is met; the exact one may be clear).
     verdict: Literal["exact", "decision_exact", "conservative"] | None = None
+    #: A conservative collision whose verdict is certain: a position the human reaches lies
+    #: within R_col of a point by its time, and the exact set holds it (False from a server
+    #: that does not say).
+    collision_witnessed: bool = False
     #: A batch check's answers, one per trajectory in order (then ``collision`` is any of them).
     trajectories: list[TrajectoryAnswer] | None = None
     #: The map assumptions the answer holds under (the agent's set cut to the road); empty

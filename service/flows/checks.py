@@ -40,6 +40,7 @@ from service.flows.agent_config import AgentConfig
 from service.flows.check_points import CheckPoints, batch_answers, check_points, check_work
 from service.flows.confidence import stored_estimates
 from service.flows.road import cut_near
+from service.flows.witnessed import witnessed_collisions
 from service.runtime.answer_cost import AnswerCosts
 from service.runtime.jobs import FRTJob
 from service.runtime.services import Services
@@ -563,9 +564,10 @@ def _respond_all(
         clearance, first = clearance_rows(points.point_distances(np.stack(probed)), radii)
         colliding = (clearance < 0.0).any(axis=1).tolist()  # a point in C
         batches, rows, least = None, clearance.tolist(), clearance.min(axis=1)
-    times = points.times
-    horizon = services.horizon_s()
+    times, horizon = points.times, services.horizon_s()
     _count_sources(services, exact, coarse)
+    answered = (exact, coarse, labels, colliding)
+    witnessed = _witnessed(services, states, answered, request, points, radii, road)
     betas = stored_estimates([state.belief for state in states])
     results = []
     for i, state in enumerate(states):
@@ -588,10 +590,35 @@ def _respond_all(
                 conservative=conservative,
                 horizon_end=state.timestamp + horizon,
                 assumptions=labels[i],
+                collision_witnessed=i in witnessed,
             )
         )
     _note_demand(services, results, least)
     return results
+
+
+def _witnessed(
+    services: Services,
+    states: Sequence[AgentState],
+    answered: tuple[Sequence[FRTSet | None], set[int], list[list[str]], list[bool]],
+    request: CollisionCheckRequest,
+    points: CheckPoints,
+    radii: np.ndarray,
+    road: _RoadCut,
+) -> set[int]:
+    """The agents whose conservative collision a reached position witnesses
+    (``service.flows.witnessed``), of ``answered`` = (exact sets, agents answered with later
+    tubes, map assumptions, collisions); counted in ``frt_collisions_witnessed``."""
+    exact, coarse, labels, colliding = answered
+    candidates = [
+        i
+        for i in range(len(states))
+        if (exact[i] is None or i in coarse) and colliding[i] and not labels[i]
+    ]
+    found = witnessed_collisions(states, road.jobs, request, points, radii, candidates)
+    if found:
+        services.metrics.collisions_witnessed.inc(len(found))
+    return found
 
 
 def _note_demand(

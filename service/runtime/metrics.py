@@ -111,6 +111,12 @@ class Metrics:
             ["verdict"],
             registry=r,
         )
+        self.collisions_witnessed = Counter(
+            "frt_collisions_witnessed",
+            "Conservative collision answers whose collision a position the human reaches "
+            "witnesses (collision_witnessed: the exact set's verdict is a collision too)",
+            registry=r,
+        )
 
     def _define_answers(self, r: CollectorRegistry) -> None:
         self.collision_checks = Counter(

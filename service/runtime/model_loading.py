@@ -25,6 +25,7 @@ from reach.held import compile_held_kernel
 from reach.packed_rings import compile_ring_kernels
 from reach.polygons import compile_polygon_kernel
 from reach.sweep_boxes import compile_sweep_kernels
+from reach.witness import compile_witness_kernel
 from service.runtime.exact_worker import ExactTask, start_pool, warm_up_task
 from service.runtime.refiner import Refinement
 from service.runtime.scheduler import FRTScheduler, timed
@@ -65,6 +66,7 @@ def load_model(
         compile_batch_kernels()
         compile_sweep_kernels()
         compile_envelope_kernels()
+        compile_witness_kernel()
     except Exception as exc:  # a missing or broken model must not stop the service
         log.error("model not loaded", extra={"model_path": str(path), "error": str(exc)})
         return f"model not loaded: {exc}"

@@ -681,6 +681,13 @@ class CollisionCheckResponse(CollisionAnswer):
         description="a batch check's answers as columns, asked for by ``answer_columns`` "
         "(instead of ``trajectories``); absent otherwise",
     )
+    collision_witnessed: bool = Field(
+        False,
+        description="a conservative collision whose verdict is certain: a position the human "
+        "reaches under the bounds, no later than a point's time, lies within R_col of it, and "
+        "the exact set holds every such position (its clearances and first collision stay the "
+        "conservative set's); false otherwise",
+    )
     assumptions: list[str] = Field(
         default_factory=list,
         description="the map assumptions the answer holds under: the agent's set cut to the "

@@ -161,3 +161,29 @@ def test_a_witnessed_collision_is_a_collision_of_the_exact_set(
                 witnessed_answers += 1
             clear += not answer["collision"]
     assert witnessed_answers > 0 and clear > 0
+
+
+def test_no_collision_is_witnessed_where_the_value_network_cuts_the_set(
+    analytic_model_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Where the network cuts, the exact set holds the reachable states only with its calibrated
+    probability (the analytic test model's cut holds some of them out): such collisions stay
+    unwitnessed."""
+    settings = Settings(
+        model_path=analytic_model_path, log_requests=False, deadline_wait_fraction=0
+    )
+    for client in client_for(settings):
+        services = client.app.state.services  # type: ignore[attr-defined]
+        monkeypatch.setattr(services, "cached_exact", lambda jobs: [None] * len(jobs))
+        monkeypatch.setattr(services, "exact_futures", lambda jobs, timeout_s: [None] * len(jobs))
+        body = observation(1.0, x=10.0, y=0.0, heading=0.0, speed=6.0)
+        assert client.post("/v1/agents/cut/observations", json=body).status_code == 200
+        state = client.portal.call(services.store.get, "cut")  # type: ignore[union-attr]
+        job = job_for(state)
+        assert services.require_engine().cuts(job.v_start, job.bounds)
+        t = 1.0 + 0.1 * np.arange(20)
+        trajectory = [{"t": float(ti), "x": 4.0 + 20.0 * (ti - 1.0), "y": 0.0} for ti in t]
+        check = {"trajectory": trajectory, "mode": "time_indexed", "deadline_ms": 1.0}
+        answer = client.post("/v1/agents/cut/collision-check", json=check).json()
+        assert answer["conservative"] and answer["collision"]
+        assert not answer["collision_witnessed"]

@@ -615,7 +615,8 @@ def _witnessed(
         for i in range(len(states))
         if (exact[i] is None or i in coarse) and colliding[i] and not labels[i]
     ]
-    found = witnessed_collisions(states, road.jobs, request, points, radii, candidates)
+    engine = services.require_engine()
+    found = witnessed_collisions(engine, states, road.jobs, request, points, radii, candidates)
     if found:
         services.metrics.collisions_witnessed.inc(len(found))
     return found

@@ -5,8 +5,10 @@ so the exact set collides there too. The answer stays ``conservative`` (its clea
 collision are the conservative set's); ``collision_witnessed`` says its verdict is certain.
 
 Only single trajectories of points are witnessed (a footprint's discs and a batch's candidates
-are not), and only answers without map assumptions: a set cut to the road need not hold a
-position off it that the dynamics reach.
+are not), only answers without map assumptions (a set cut to the road need not hold a position
+off it that the dynamics reach) and only settings the value network does not cut (its cut holds
+the reachable states with a calibrated probability, not for certain; with the shipped card the
+network cuts none).
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from reach.engine import FRTEngine
 from reach.frames import to_human_frame
 from reach.witness import witnessed, witnesses
 from service.flows.check_points import CheckPoints
@@ -24,6 +27,7 @@ from service.wire.schemas import CollisionCheckRequest
 
 
 def witnessed_collisions(
+    engine: FRTEngine,
     states: Sequence[AgentState],
     jobs: Sequence[FRTJob],
     request: CollisionCheckRequest,
@@ -32,12 +36,15 @@ def witnessed_collisions(
     candidates: Sequence[int],
 ) -> set[int]:
     """Of the agents ``candidates`` (answered conservatively, in collision, without map
-    assumptions), those whose collision a witness position shows."""
+    assumptions), those whose collision a witness position shows, where ``engine``'s value
+    network does not cut the agent's set."""
     if points.batch or points.cover is not None:
         return set()
     found = set()
     for i in candidates:
         job = jobs[i]
+        if any(engine.cuts(job.v_start, row) for row in np.asarray(job.bounds).reshape(-1, 8)):
+            continue
         until = None
         if request.mode == "time_indexed":
             until = np.maximum(points.times - states[i].timestamp, 0.0)

@@ -75,6 +75,7 @@ async def drive(args: argparse.Namespace) -> dict[str, Any]:
     frame_s: list[float] = []
     check_s: list[float] = []
     verdicts: dict[str, int] = {}
+    witnessed: list[str] = []  # the agents of conservative collisions said witnessed
 
     async def framer() -> None:
         for k, body in enumerate(bodies):
@@ -110,7 +111,7 @@ async def drive(args: argparse.Namespace) -> dict[str, Any]:
                 if result.verdict == "conservative" and getattr(
                     result, "collision_witnessed", False
                 ):
-                    verdicts["witnessed"] = verdicts.get("witnessed", 0) + 1
+                    witnessed.append(result.agent_id)
 
     lanes = [-20.0 + 40.0 * i / max(args.planners - 1, 1) for i in range(args.planners)]
     loop_cpu, process_cpu = time.thread_time(), time.process_time()
@@ -118,13 +119,18 @@ async def drive(args: argparse.Namespace) -> dict[str, Any]:
     elapsed = time.monotonic() - t0
     busy = (time.thread_time() - loop_cpu) / elapsed, (time.process_time() - process_cpu) / elapsed
     await services.stop()
-    return {**summary(frame_s, check_s, verdicts, args.deadline_ms), "cpu_per_s": busy}
+    result = summary(frame_s, check_s, verdicts, args.deadline_ms, len(witnessed))
+    return {**result, "cpu_per_s": busy}
 
 
 def summary(
-    frame_s: list[float], check_s: list[float], verdicts: dict[str, int], deadline_ms: float
+    frame_s: list[float],
+    check_s: list[float],
+    verdicts: dict[str, int],
+    deadline_ms: float,
+    witnessed: int,
 ) -> dict[str, Any]:
-    answers = sum(n for verdict, n in verdicts.items() if verdict != "witnessed")
+    answers = sum(verdicts.values())
     settled = verdicts.get("exact", 0) + verdicts.get("decision_exact", 0)
     return {
         "frames": len(frame_s),
@@ -135,7 +141,8 @@ def summary(
         "verdicts": verdicts,
         "exact_or_decision_exact": settled / answers if answers else None,
         # A conservative collision a reached position witnesses has the exact set's verdict.
-        "verdict_known": (settled + verdicts.get("witnessed", 0)) / answers if answers else None,
+        "witnessed": witnessed,
+        "verdict_known": (settled + witnessed) / answers if answers else None,
     }
 
 

@@ -95,15 +95,9 @@ def test_an_answer_near_a_set_demands_it_whichever_set_answered() -> None:
 
     margin = Settings().exact_demand_margin_m
 
-    def answer(
-        agent_id: str, conservative: bool, collision: bool, batch: bool = False
-    ) -> CollisionCheckResponse:
+    def answer(agent_id: str, conservative: bool, collision: bool) -> CollisionCheckResponse:
         return CollisionCheckResponse.model_construct(
-            agent_id=agent_id,
-            conservative=conservative,
-            collision=collision,
-            trajectories=[{"collision": collision}] if batch else None,
-            trajectory_columns=None,
+            agent_id=agent_id, conservative=conservative, collision=collision
         )
 
     class _Services:
@@ -118,11 +112,13 @@ def test_an_answer_near_a_set_demands_it_whichever_set_answered() -> None:
         answer("exact-far", False, False),
         answer("meets", True, True),  # conservative: its exact set decides
         answer("exact-meets", False, True),
-        answer("batch-meets", False, True, batch=True),  # some candidate of many
     ]
-    least = np.array([margin - 0.5, margin + 0.5, margin - 0.5, margin + 0.5, -1.0, -0.5, -0.5])
+    least = np.array([margin - 0.5, margin + 0.5, margin - 0.5, margin + 0.5, -1.0, -0.5])
     services = _Services()
-    _note_demand(services, results, least)  # type: ignore[arg-type]
+    _note_demand(services, results, least, batch=False)  # type: ignore[arg-type]
+    batch = [answer("batch-meets", False, True)]  # some candidate of many collides
+    _note_demand(services, batch, np.array([-0.5]), batch=True)  # type: ignore[arg-type]
+    results += batch
     wanted = {r.agent_id for r in results if services.demand.wants(r.agent_id)}
     assert wanted == {"clear-near", "exact-near", "meets", "exact-meets", "batch-meets"}
     # The trajectory met these two sets: their next sets go before the other demanded agents'.

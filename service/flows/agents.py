@@ -310,7 +310,7 @@ def _submitted(
         job = jobs.get(id(state))
         applied.append((entry, state, job if job is not None else services.job_for(state)))
     services.submit_many([job for _, _, job in applied])
-    building()
+    building.finish()
     conservative = cached_conservative(services, [job for _, _, job in applied])
     later = []
     for (entry, state, job), frt in zip(applied, conservative, strict=True):

@@ -593,7 +593,7 @@ def _respond_all(
                 collision_witnessed=i in witnessed,
             )
         )
-    _note_demand(services, results, least)
+    _note_demand(services, results, least, points.batch)
     return results
 
 
@@ -623,7 +623,10 @@ def _witnessed(
 
 
 def _note_demand(
-    services: Services, results: Sequence[CollisionCheckResponse], least: np.ndarray
+    services: Services,
+    results: Sequence[CollisionCheckResponse],
+    least: np.ndarray,
+    batch: bool,
 ) -> None:
     """Count the answers by verdict, and demand the exact sets of the agents whose answer they
     would change or nearly (``service.runtime.demand``): a conservative verdict, or a least
@@ -631,15 +634,14 @@ def _note_demand(
     exact set's) from the conservative one: a trajectory that passes that close to an agent's
     set is likely to meet it at the next check, and its exact set is then under way. An agent
     whose set the trajectory met (a collision, from either set) is noted as met: its next
-    sets go first. A batch's collision is of some candidate among many, which the planner may
-    not take: its agents are demanded, not met."""
+    sets go first. A ``batch``'s collision is of some candidate among many, which the planner
+    may not take: its agents are demanded, not met."""
     verdicts = Counter(r.verdict for r in results)
     for verdict, count in verdicts.items():
         services.metrics.check_verdicts.labels(verdict).inc(count)
     margin = services.settings.exact_demand_margin_m
     near, met = [], []
     for r, clearance in zip(results, least.tolist(), strict=True):
-        batch = r.trajectories is not None or r.trajectory_columns is not None
         if r.collision and not batch:
             met.append(r.agent_id)
         elif r.verdict == "conservative" or clearance < margin:

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import asyncio
 import itertools
-import os
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -21,6 +20,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from reach.batch import KERNEL_THREADS
 from reach.sets import FRTSet
 from reach.union import SettingRows
 from service.runtime.jobs import FRTJob
@@ -31,11 +31,9 @@ if TYPE_CHECKING:
 #: Rows of bounds (settings, a multi-modal one's modes each) from which the outer bounds are
 #: propagated on the thread.
 THREAD_ROWS = 16
-#: Threads a frame's rows are split between: two where the process may use two CPUs (the
-#: exact-set workers yield them: they run below the server), else one.
-PROPAGATION_THREADS = min(
-    2, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-)
+#: Threads a frame's rows are split between: as many as a batch check's kernels use, two where
+#: the process may use two CPUs (the exact-set workers yield them: they run below the server).
+PROPAGATION_THREADS = KERNEL_THREADS
 _PROPAGATION = ThreadPoolExecutor(
     max_workers=PROPAGATION_THREADS, thread_name_prefix="frt-conservative"
 )
@@ -50,9 +48,6 @@ class ConservativeBuild:
     finish: Callable[[], list[FRTSet]]
     propagating: tuple[Future[tuple[np.ndarray, float]], ...] = ()
 
-    def __call__(self) -> list[FRTSet]:
-        return self.finish()
-
     async def propagated(self) -> None:
         pending = [asyncio.wrap_future(f) for f in self.propagating if not f.done()]
         if pending:
@@ -63,7 +58,7 @@ def cached_conservative(services: Services, jobs: Sequence[FRTJob]) -> list[FRTS
     """Each job's conservative set (boxes only, on the caller's thread unless there are many):
     from the cache, or built with the other missing ones and cached, so that checks finding an
     exact set late look it up."""
-    return start_conservative(services, jobs)()
+    return start_conservative(services, jobs).finish()
 
 
 def start_conservative(services: Services, jobs: Sequence[FRTJob]) -> ConservativeBuild:

@@ -47,15 +47,16 @@ class ExactDemand:
 
     def wants(self, agent_id: str, now: float | None = None) -> bool:
         """Whether a check came near ``agent_id`` within the last :attr:`hold_s` seconds."""
-        with self._lock:
-            until = self._until.get(agent_id)
-        return until is not None and (time.perf_counter() if now is None else now) < until
+        return self._noted(self._until, agent_id, now)
 
     def met(self, agent_id: str, now: float | None = None) -> bool:
         """Whether a check's trajectory met ``agent_id``'s set within the last :attr:`hold_s`
         seconds."""
+        return self._noted(self._met_until, agent_id, now)
+
+    def _noted(self, table: dict[str, float], agent_id: str, now: float | None) -> bool:
         with self._lock:
-            until = self._met_until.get(agent_id)
+            until = table.get(agent_id)
         return until is not None and (time.perf_counter() if now is None else now) < until
 
     def rank(self, agent_id: str, now: float | None = None) -> int:

@@ -79,7 +79,7 @@ def box_scale(box: np.ndarray) -> np.ndarray:
     return np.sqrt((box[..., 1] - box[..., 0]) * (box[..., 3] - box[..., 2]))
 
 
-def _stop_rule_integral(v0: np.ndarray, increments: np.ndarray) -> np.ndarray:
+def stop_rule_integral(v0: np.ndarray, increments: np.ndarray) -> np.ndarray:
     """Per row (v0 [B, 1], increments [B, n]): v[i+1] = max(v[i] + increments[i], 0), vectorised
     (Lindley's recursion): v[n] = S[n] - min(-v0, min_{k<=n} S[k]) with S the cumulative sum of
     the increments."""
@@ -179,8 +179,8 @@ def _propagate(
     a_hi = _lerp(u2_hi_s, u2_hi_e, fine, horizon)
     step_lo = np.minimum(a_lo[:, :-1], a_lo[:, 1:]) * h
     step_hi = np.maximum(a_hi[:, :-1], a_hi[:, 1:]) * h
-    v_lo = _stop_rule_integral(np.maximum(v0 - m.speed_margin_mps, 0.0), step_lo)
-    v_hi = _stop_rule_integral(v0 + m.speed_margin_mps, step_hi)
+    v_lo = stop_rule_integral(np.maximum(v0 - m.speed_margin_mps, 0.0), step_lo)
+    v_hi = stop_rule_integral(v0 + m.speed_margin_mps, step_hi)
 
     # Over each fine step: heading in the hull of both ends (theta bounds are quadratics: pad by
     # the largest possible bulge |u1 change| h^2 / 8), speed in [min v_lo, max v_hi].

@@ -36,6 +36,7 @@ import shapely
 from shapely.geometry.base import BaseGeometry
 
 from reach.contract import INITIAL_SET, InitialSet
+from reach.outer_bound import stop_rule_integral
 from reach.road_map import cut_to
 
 #: The label of this assumption in answers.
@@ -69,11 +70,8 @@ def reach_radii(
     # u2_max_start, u2_max_end: columns 5 and 7; the bounds are linear over [0, horizon].
     a_hi = (1.0 - w_at)[None, :] * rows[:, 5:6] + w_at[None, :] * rows[:, 7:8]
     gain = np.maximum(a_hi[:, :-1], a_hi[:, 1:]) * h
-    # w_(k+1) = max(w_k + gain_k, 0) in closed form (Lindley's recursion, as the outer bound's):
-    # w_n = S_n - min(-w_0, min over k <= n of S_k), S the running sum of the gains from 0.
-    total = np.concatenate([np.zeros((len(rows), 1)), np.cumsum(gain, axis=1)], axis=1)
-    w0 = v_start + initial_set.speed_margin_mps
-    w = total - np.minimum(-w0, np.minimum.accumulate(total, axis=1))
+    # w_(k+1) = max(w_k + gain_k, 0), in closed form as the outer bound's speed.
+    w = stop_rule_integral(np.full((len(rows), 1), v_start + initial_set.speed_margin_mps), gain)
     speed = np.minimum(np.maximum(w[:, :-1], w[:, 1:]), v_cap)
     path = np.concatenate([np.zeros((len(rows), 1)), np.cumsum(speed * h, axis=1)], axis=1)
     rho = initial_set.radius_m + path.max(axis=0)[::SUBSTEPS]

@@ -11,7 +11,7 @@ The witnesses are rollouts of the extended unicycle (``reach.dynamics``) from th
 the interpolated bounds, ``u_i(tau) = lo_i(tau) + f_i (hi_i(tau) - lo_i(tau))`` for every pair of
 :data:`FRACTIONS` (within the bounds at every instant). The heading is integrated exactly
 (theta' = u1 is linear in tau), the speed too up to the stop rule (v' = u2 while moving: the
-reflection at 0 of ``X(tau) = v_start + int u2``, ``v = X - min(0, min_{s <= tau} X(s))``, its
+reflection at 0 of ``X(tau) = v_start + int u2``, ``reach.outer_bound.stop_rule_integral``, its
 minimum taken on the steps), and the position by the trapezoidal rule on :data:`STEP_S` steps;
 :data:`POSITION_ERROR_M` bounds how far a recorded position may lie from the true one, and a
 witness must be that much nearer than R_col.
@@ -27,6 +27,7 @@ import numpy as np
 
 from reach.contract import COL, HORIZON_S
 from reach.dynamics import interpolate_bounds, unicycle_derivative
+from reach.outer_bound import stop_rule_integral
 
 #: Places of each control in its interval (0: the lower bound, 1: the upper one).
 FRACTIONS = (0.0, 0.5, 1.0)
@@ -78,8 +79,7 @@ def _rollouts(v_start: float, row: np.ndarray, times: np.ndarray) -> np.ndarray:
     u1 = lo1 + f1 * (hi1 - lo1)  # [K, N]
     u2 = lo2 + f2 * (hi2 - lo2)
     heading = _integral(u1, times)
-    drive = v_start + _integral(u2, times)
-    speed = drive - np.minimum(np.minimum.accumulate(drive, axis=1), 0.0)
+    speed = stop_rule_integral(np.full((len(u2), 1), v_start), _steps(u2, times))
     dx, dy, _, _ = unicycle_derivative(heading, speed, u1, u2)
     return np.stack([_integral(dx, times), _integral(dy, times)], axis=-1)
 
@@ -88,11 +88,15 @@ def _pairs() -> list[tuple[float, float]]:
     return [(a, b) for a in FRACTIONS for b in FRACTIONS]
 
 
+def _steps(values: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """Each step's trapezoidal integral along the last axis."""
+    return 0.5 * (values[..., 1:] + values[..., :-1]) * np.diff(times)
+
+
 def _integral(values: np.ndarray, times: np.ndarray) -> np.ndarray:
     """Cumulative trapezoidal integral along the last axis, from 0."""
-    steps = 0.5 * (values[..., 1:] + values[..., :-1]) * np.diff(times)
     start = np.zeros((*values.shape[:-1], 1))
-    return np.concatenate([start, np.cumsum(steps, axis=-1)], axis=-1)
+    return np.concatenate([start, np.cumsum(_steps(values, times), axis=-1)], axis=-1)
 
 
 def witnessed(

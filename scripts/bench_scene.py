@@ -6,7 +6,8 @@ processes as served) and drives, on its own event loop, what a scene sends a rep
 cars, pedestrians and three-mode cars, ``service.flows.frames.apply_frame``), and ``--planners``
 planners each checking a 20-point, 2 s time-indexed trajectory against every agent at ``--hz``
 (``service.flows.checks.check_agents_at_once``, deadline ``--deadline-ms``). The frames' bodies
-are made before the clock starts. Without HTTP and without a load harness beside it, what is
+are made before the clock starts and read as ``POST /v1/frames`` reads them (typed in one pass,
+``service.wire.frame_body.parse_frame``), inside each frame's time. Without HTTP and without a load harness beside it, what is
 measured is the event loop's own scheduling: how long a check waits behind frames and their
 audit, from the tick it was due at to its answer. The share of answers exact or decision-exact
 is printed with, beside it, the share whose verdict is known: those and the conservative
@@ -46,7 +47,7 @@ def quantile_ms(values: list[float], q: float) -> float:
     return 1e3 * ordered[min(len(ordered) - 1, int(q * len(ordered)))] if ordered else float("nan")
 
 
-def frame_bodies(args: argparse.Namespace) -> list[str]:
+def frame_bodies(args: argparse.Namespace) -> list[bytes]:
     """Every frame's JSON body, made before the clock starts: the scene's simulation is not the
     service's work."""
     from scripts.bench_frames import Scene
@@ -55,7 +56,7 @@ def frame_bodies(args: argparse.Namespace) -> list[str]:
     for k in range(int(args.duration * args.hz) + 1):
         t = k / args.hz
         agents = [{"agent_id": a, **e} for a, e in scene.step(t)]
-        bodies.append(json.dumps({"timestamp": t, "agents": agents}))
+        bodies.append(json.dumps({"timestamp": t, "agents": agents}).encode())
     return bodies
 
 
@@ -65,6 +66,15 @@ async def drive(args: argparse.Namespace) -> dict[str, Any]:
     from service.runtime.services import Services
     from service.runtime.settings import Settings
     from service.wire.schemas import FrameRequest, MultiCollisionCheckRequest
+
+    try:  # read as the route reads it (a tree without the typed path: by the model)
+        from service.wire.frame_body import parse_frame
+    except ImportError:
+        parse_frame = None
+
+    def read_frame(body: bytes) -> FrameRequest:
+        typed = parse_frame(body, FrameRequest) if parse_frame is not None else None
+        return typed if typed is not None else FrameRequest.model_validate_json(body)
 
     services = Services.build(Settings(model_path=args.model, log_requests=False))
     await services.start()
@@ -83,7 +93,7 @@ async def drive(args: argparse.Namespace) -> dict[str, Any]:
             if time.monotonic() - t0 >= args.duration:
                 return
             started = time.perf_counter()
-            await frames.apply_frame(services, FrameRequest.model_validate_json(body))
+            await frames.apply_frame(services, read_frame(body))
             frame_s.append(time.perf_counter() - started)
 
     async def planner(lane: float) -> None:

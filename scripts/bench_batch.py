@@ -18,6 +18,10 @@ time of the whole series of single checks, and their ratio; writes ``results/ben
 The rows of the ``sdk`` form are ``batch`` and ``fp``, those of the ``columns`` form
 ``batch_columns`` and ``fp_columns``.
 
+``--pause S`` leaves each service idle S seconds before each batch, as a planner checking at
+10 Hz leaves it (``--pause 0.1``); back to back (0, the default) the service's caches and cores
+stay warm from one batch to the next, which a planner's cycle does not give them.
+
 ``--kinds batch`` sends only the plain batches (``fp`` only those with footprints); ``--profile
 PATH`` samples this tree's service with py-spy during the rounds (py-spy's raw format: one stack a
 line with its count of samples) and prints the share of the requests' samples each phase of a
@@ -186,10 +190,11 @@ def prepare(target: Target, args: argparse.Namespace) -> None:
         timed_post(target.client, body)
 
 
-def one_round(target: Target, singles: bool) -> None:
+def one_round(target: Target, singles: bool, pause_s: float = 0.0) -> None:
     """One batch and one batch with footprints (and, if ``singles``, the series of single
-    checks) on ``target``."""
+    checks) on ``target``, each batch sent ``pause_s`` after the last answer."""
     for name, body in target.bodies.items():
+        time.sleep(pause_s)
         elapsed, server, answer = timed_post(target.client, body)
         target.rows[name].append(elapsed)
         target.rows[f"{name}_server"].append(server)
@@ -231,7 +236,7 @@ def run(targets: list[Target], args: argparse.Namespace, pid: int) -> dict:
         )  # fmt: skip
     for r in range(args.rounds):
         for target in targets:
-            one_round(target, singles=r < args.single_series)
+            one_round(target, singles=r < args.single_series, pause_s=args.pause)
     if spy is not None:
         spy.send_signal(signal.SIGINT)
         spy.wait(timeout=60)
@@ -297,6 +302,9 @@ def main() -> None:
         "--single-series", type=int, default=5, help="series of single checks, one per round"
     )
     parser.add_argument("--kinds", default="batch,fp", help="batch, fp or both (comma-separated)")
+    parser.add_argument(
+        "--pause", type=float, default=0.0, help="idle seconds before each batch (0: back to back)"
+    )
     parser.add_argument("--forms", default="sdk,columns", help="sdk, columns or both")
     parser.add_argument("--baseline-forms", default="columns", help="the baseline's forms")
     parser.add_argument("--profile", type=Path, help="py-spy this tree's service (raw stacks)")

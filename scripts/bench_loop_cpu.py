@@ -4,7 +4,7 @@
 One process builds the service's engine (``Services``, the shipped model, exact sets in worker
 processes) and, one after another on its event loop, applies ``scripts/bench_frames.py``'s
 scene of ``--agents`` agents frame by frame (``service.flows.frames.apply_frame``, the body
-parsed as ``FrameRequest`` first) and after each frame two planners' checks of every agent
+read first as ``POST /v1/frames`` reads it) and after each frame two planners' checks of every agent
 (20-point time-indexed trajectories, ``check_agents_at_once``, answers dumped to JSON), with a
 pause between them for the audit and the workers. What is timed is the thread's CPU
 (``time.thread_time``) of each parse, frame and check: unlike a latency it barely moves with
@@ -52,7 +52,7 @@ async def measure(args: argparse.Namespace) -> dict[str, Any]:
     parse_s, frame_s, check_s = [], [], []
     for k, body in enumerate(bench_scene.frame_bodies(scene)):
         started = time.thread_time()
-        request = FrameRequest.model_validate_json(body)
+        request = bench_scene.read_frame(body, FrameRequest)
         parsed = time.thread_time()
         await frames.apply_frame(services, request)
         applied = time.thread_time()

@@ -30,7 +30,9 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
+
+from pydantic import BaseModel
 
 ROOT = Path(__file__).resolve().parent.parent
 SOURCE = Path(os.environ.get("FRT_BENCH_SOURCE", ROOT))
@@ -40,6 +42,7 @@ sys.path.insert(1, str(ROOT))
 TRAJECTORY_POINTS = 20
 TRAJECTORY_DT = 0.1
 PLANNER_SPEED = 8.0
+M = TypeVar("M", bound=BaseModel)
 
 
 def quantile_ms(values: list[float], q: float) -> float:
@@ -60,21 +63,23 @@ def frame_bodies(args: argparse.Namespace) -> list[bytes]:
     return bodies
 
 
+def read_frame(body: bytes, model: type[M]) -> M:
+    """A frame's body read as ``POST /v1/frames`` reads it: typed in one pass where the tree
+    has that path (``service.wire.frame_body.parse_frame``), else by ``model``."""
+    try:
+        from service.wire.frame_body import parse_frame
+    except ImportError:
+        return model.model_validate_json(body)
+    typed = parse_frame(body, model)
+    return typed if typed is not None else model.model_validate_json(body)
+
+
 async def drive(args: argparse.Namespace) -> dict[str, Any]:
     """The scene for ``args.duration`` seconds: frame and check latencies, check verdicts."""
     from service.flows import checks, frames
     from service.runtime.services import Services
     from service.runtime.settings import Settings
     from service.wire.schemas import FrameRequest, MultiCollisionCheckRequest
-
-    try:  # read as the route reads it (a tree without the typed path: by the model)
-        from service.wire.frame_body import parse_frame
-    except ImportError:
-        parse_frame = None
-
-    def read_frame(body: bytes) -> FrameRequest:
-        typed = parse_frame(body, FrameRequest) if parse_frame is not None else None
-        return typed if typed is not None else FrameRequest.model_validate_json(body)
 
     services = Services.build(Settings(model_path=args.model, log_requests=False))
     await services.start()
@@ -93,7 +98,7 @@ async def drive(args: argparse.Namespace) -> dict[str, Any]:
             if time.monotonic() - t0 >= args.duration:
                 return
             started = time.perf_counter()
-            await frames.apply_frame(services, read_frame(body))
+            await frames.apply_frame(services, read_frame(body, FrameRequest))
             frame_s.append(time.perf_counter() - started)
 
     async def planner(lane: float) -> None:

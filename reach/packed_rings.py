@@ -30,7 +30,9 @@ below the threshold it visits the points in order again: a point whose value is 
 threshold takes its support bound and is evaluated if that is still below, until the first whose
 distance is; every point before it has s_i >= threshold (a bound, so d_i too) or s_i = d_i, so
 the first s_i below the threshold is the first d_i below it. Reductions of s by minimum and by
-first index below the threshold are therefore those of d.
+first index below the threshold are therefore those of d. A point evaluated with a positive
+bound is outside K: its distance is the nearest segment's, found without counting the rings'
+crossings.
 """
 
 from __future__ import annotations
@@ -233,10 +235,10 @@ def _to_frame(x0, y0, c, s, x, y):
 
 
 @numba.njit(cache=True, nogil=True)
-def _signed(segments, segment_starts, chunk_boxes, chunk_starts, g, x, y):
+def _signed(segments, segment_starts, chunk_boxes, chunk_starts, g, x, y, outside=False):
     """Signed distance from (x, y) to polygon g (+inf if it has no segments). A chunk whose box is
     no nearer than the nearest segment found, and that a ray from the point towards +x cannot
-    cross, is skipped."""
+    cross, is skipped; for a point known ``outside`` g the ray's crossings are not counted."""
     best = np.inf
     inside = False
     # The segments of the chunk whose box is nearest first: the bound they give skips most others.
@@ -259,7 +261,7 @@ def _signed(segments, segment_starts, chunk_boxes, chunk_starts, g, x, y):
         gx = max(bx0 - x, x - bx1, 0.0)
         gy = max(by0 - y, y - by1, 0.0)
         near = gx * gx + gy * gy < best
-        crossable = by0 <= y < by1 and x < bx1
+        crossable = not outside and by0 <= y < by1 and x < bx1
         if not (near or crossable):
             continue
         for e in range(segment_starts[c], segment_starts[c + 1]):
@@ -267,7 +269,7 @@ def _signed(segments, segment_starts, chunk_boxes, chunk_starts, g, x, y):
             dx, dy = x1 - x0, y1 - y0
             if near and c != nearest:
                 best = min(best, _segment_distance2(segments, e, x, y))
-            if (y0 > y) != (y1 > y) and x < x0 + (y - y0) * dx / dy:
+            if crossable and (y0 > y) != (y1 > y) and x < x0 + (y - y0) * dx / dy:
                 inside = not inside
     distance = np.sqrt(best)
     return -distance if inside else distance
@@ -325,7 +327,14 @@ def _evaluate(geometry, xs, ys, which, group, p, out):
     first = p * group
     if group == 1:
         out[first] = _signed(
-            segments, segment_starts, chunk_boxes, chunk_starts, which[first], xs[first], ys[first]
+            segments,
+            segment_starts,
+            chunk_boxes,
+            chunk_starts,
+            which[first],
+            xs[first],
+            ys[first],
+            out[first] > 0.0,
         )
         return out[first]
     least = np.inf
@@ -339,7 +348,7 @@ def _evaluate(geometry, xs, ys, which, group, p, out):
             break
         done |= 1 << (i - first)
         out[i] = _signed(
-            segments, segment_starts, chunk_boxes, chunk_starts, which[i], xs[i], ys[i]
+            segments, segment_starts, chunk_boxes, chunk_starts, which[i], xs[i], ys[i], bound > 0.0
         )
         least = min(least, out[i])
     return least

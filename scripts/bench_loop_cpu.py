@@ -4,11 +4,12 @@
 One process builds the service's engine (``Services``, the shipped model, exact sets in worker
 processes) and, one after another on its event loop, applies ``scripts/bench_frames.py``'s
 scene of ``--agents`` agents frame by frame (``service.flows.frames.apply_frame``, the body
-read first as ``POST /v1/frames`` reads it) and after each frame two planners' checks of every agent
-(20-point time-indexed trajectories, ``check_agents_at_once``, answers dumped to JSON), with a
-pause between them for the audit and the workers. What is timed is the thread's CPU
-(``time.thread_time``) of each parse, frame and check: unlike a latency it barely moves with
-other processes' load on the machine, so two trees can be compared in turns on a busy one.
+read first as ``POST /v1/frames`` reads it) and after each frame two planners' checks of every
+agent (20-point time-indexed trajectories, ``check_agents_at_once``, answers dumped to JSON),
+with a pause between them for the audit and the workers. What is timed is the thread's CPU
+(``time.thread_time``) of each parse, frame and check: it moves less than a latency with other
+processes' load on the machine, though on a shared host it still drifts from run to run (by a
+third at times), so two trees are compared in turns, several of them.
 Prints one JSON line of medians and 90th percentiles in ms.
 
 ``--src DIR`` runs another checkout of the project (e.g. ``git worktree add DIR REV``) with

@@ -7,9 +7,9 @@ cars, pedestrians and three-mode cars, ``service.flows.frames.apply_frame``), an
 planners each checking a 20-point, 2 s time-indexed trajectory against every agent at ``--hz``
 (``service.flows.checks.check_agents_at_once``, deadline ``--deadline-ms``). The frames' bodies
 are made before the clock starts and read as ``POST /v1/frames`` reads them (typed in one pass,
-``service.wire.frame_body.parse_frame``), inside each frame's time. Without HTTP and without a load harness beside it, what is
-measured is the event loop's own scheduling: how long a check waits behind frames and their
-audit, from the tick it was due at to its answer. The share of answers exact or decision-exact
+``service.wire.frame_body.parse_frame``), inside each frame's time. Without HTTP and without a
+load harness beside it, what is measured is the event loop's own scheduling: how long a check
+waits behind frames and their audit, from the tick it was due at to its answer. The share of answers exact or decision-exact
 is printed with, beside it, the share whose verdict is known: those and the conservative
 collisions a reached position witnesses (``collision_witnessed``).
 

@@ -26,6 +26,7 @@ from reach.distances import box_union_distances_until, compile_distance_kernels,
 from reach.frames import human_frames
 from reach.packed_rings import point_columns, signed_distances_packed, trajectory_surrogates
 from reach.sets import BoxTubeSet, FRTSet
+from reach.thread_placement import forget_helpers, keep_helpers_off_caller, register
 
 
 def box_clearances(
@@ -134,7 +135,10 @@ def _start_helpers(count: int) -> None:
     global _helpers
     with _helpers_lock:
         while _helpers < count:
-            threading.Thread(target=_helper, name="frt-kernel", daemon=True).start()
+            thread = threading.Thread(target=_helper, name="frt-kernel", daemon=True)
+            thread.start()
+            if thread.native_id is not None:
+                register(thread.native_id)
             _helpers += 1
 
 
@@ -142,6 +146,7 @@ def _forget_helpers() -> None:
     """In a forked child, which holds none of the parent's threads: helpers of its own."""
     global _jobs, _helpers, _helpers_lock
     _jobs, _helpers, _helpers_lock = queue.SimpleQueue(), 0, threading.Lock()
+    forget_helpers()
 
 
 os.register_at_fork(after_in_child=_forget_helpers)
@@ -149,12 +154,14 @@ os.register_at_fork(after_in_child=_forget_helpers)
 
 def run_on_threads(calls: Sequence[Callable[[], T]], threads: int) -> list[T]:
     """``[call() for call in calls]``, on up to ``threads`` threads: the calling one and helper
-    threads kept for this, each taking the next call no thread has taken until none is left.
-    An exception of a call is raised once every thread has stopped."""
+    threads kept for this (off the calling one's CPU: ``reach.thread_placement``), each taking
+    the next call no thread has taken until none is left. An exception of a call is raised once
+    every thread has stopped."""
     helpers = min(threads, len(calls)) - 1
     if helpers <= 0:
         return [call() for call in calls]
     _start_helpers(helpers)
+    keep_helpers_off_caller()
     out: list[T | None] = [None] * len(calls)
     taken = itertools.count()  # next() on it is atomic: each call is taken once
 

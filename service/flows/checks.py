@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from pydantic import TypeAdapter
 
 from reach.batch import (
     Reduction,
@@ -580,32 +581,41 @@ def _respond_all(
     answered = (exact, coarse, labels, colliding)
     witnessed = _witnessed(services, states, answered, request, points, radii, road)
     betas = stored_estimates([state.belief for state in states])
-    results = []
+    fields = []
     for i, state in enumerate(states):
-        conservative = exact[i] is None or i in coarse
         index = int(first[i]) if first[i] >= 0 else None
-        batch = {} if batches is None else {answers.field: batches[i]}
-        # Built from values of the right types: no second validation of every clearance.
-        results.append(
-            CollisionCheckResponse.model_construct(
-                collision=colliding[i],
-                first_collision_index=index,
-                first_collision_time=None if index is None else float(times[index]),
-                clearance=rows[i],
-                **batch,
-                agent_id=state.agent_id,
-                mode=request.mode,
-                collision_radius=float(radii[i]),
-                beta=betas[i],
-                frt_version=state.frt_version,
-                conservative=conservative,
-                horizon_end=state.timestamp + horizon,
-                assumptions=labels[i],
-                collision_witnessed=i in witnessed,
-            )
+        fields.append(
+            {
+                "collision": colliding[i],
+                "first_collision_index": index,
+                "first_collision_time": None if index is None else float(times[index]),
+                "clearance": rows[i],
+                "agent_id": state.agent_id,
+                "mode": request.mode,
+                "collision_radius": float(radii[i]),
+                "beta": betas[i],
+                "frt_version": state.frt_version,
+                "conservative": exact[i] is None or i in coarse,
+                "horizon_end": state.timestamp + horizon,
+                "assumptions": labels[i],
+                "collision_witnessed": i in witnessed,
+            }
         )
+    if batches is None:
+        # One validation of every answer (in pydantic's compiled core): cheaper than building
+        # each model in Python, and every value checked.
+        results = _ANSWERS.validate_python(fields)
+    else:  # a batch's answers per trajectory are not validated again, item by item
+        results = [
+            CollisionCheckResponse.model_construct(**f, **{answers.field: batches[i]})
+            for i, f in enumerate(fields)
+        ]
     _note_demand(services, results, least, points.batch)
     return results
+
+
+#: The answers of a check of one trajectory, validated together.
+_ANSWERS = TypeAdapter(list[CollisionCheckResponse])
 
 
 def _witnessed(

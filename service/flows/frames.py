@@ -150,11 +150,17 @@ async def apply_frame(services: Services, request: FrameRequest) -> FrameRespons
     results: list[ObservationResponse | FrameRejection | None] = [None] * len(request.agents)
     valid = _entries(request, results)
     applied = await _met_first(services, [(a, o) for _, a, o in valid])
+    stored: list[tuple[int, ObservationRequest, agents.Applied]] = []
     for (index, agent_id, observation), result in zip(valid, applied, strict=True):
         if isinstance(result, APIError):
             results[index] = _rejection(index, agent_id, result)
         else:
-            results[index] = agents.observation_response(services, observation, result)
+            stored.append((index, observation, result))
+    answers = agents.observation_responses(
+        services, [o for _, o, _ in stored], [a for _, _, a in stored]
+    )
+    for (index, _, _), answer in zip(stored, answers, strict=True):
+        results[index] = answer
     rejected = sum(isinstance(r, FrameRejection) for r in results)
     return FrameResponse(
         timestamp=request.timestamp,

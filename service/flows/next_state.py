@@ -478,6 +478,31 @@ def _assembled(
     return state, belief  # type: ignore[return-value]
 
 
+def bounds_fields(values: Sequence[float]) -> dict[str, float]:
+    """The eight bounds in contract order (``reach.contract.BOUND_COLUMNS``) as the fields of
+    ``ControlBoundsOut``."""
+    return dict(zip(BOUND_COLUMNS, map(float, values), strict=True))
+
+
+def modes_fields(modes: dict[str, Any] | None) -> list[dict[str, Any]] | None:
+    """:func:`modes_out` as the fields of each ``ModeOut``."""
+    if modes is None:
+        return None
+    mode_set = ModeSet.from_dict(modes)
+    bounds = dict(zip(mode_set.set, mode_set.bounds, strict=True))
+    weights = mode_set.belief["weights"]
+    return [
+        {
+            "weight": float(weights[m]),
+            "posterior": float(p),
+            "beta": float(mode_set.beta[m]),
+            "in_set": m in bounds,
+            "control_bounds": bounds_fields(bounds[m]) if m in bounds else None,
+        }
+        for m, p in enumerate(mode_set.posterior)
+    ]
+
+
 def modes_out(modes: dict[str, Any] | None) -> list[ModeOut] | None:
     """The ``modes`` of a response: per mode, in the order given, its weight, posterior, beta and
     whether (with which bounds) the served set holds it; None for a single Gaussian."""

@@ -397,13 +397,19 @@ def _note_tube_demand(
     """Tell the workers which tubes of each agent's next sets this check would have needed
     (``service.runtime.tube_demand``): the largest tube index of its points, 0 for a whole-tube
     check (the engine draws the whole tube itself): the tube of its latest time, as tube
-    indices grow with time."""
-    services.tube_demand.note_many(
-        [
-            (state.agent_id, 0 if t is None or not len(t) else sets[i].tube_index(float(t.max())))
-            for i, (state, t) in enumerate(zip(states, t_rel, strict=True))
-        ]
-    )
+    indices grow with time. Agents observed at one time share their array of times
+    (:func:`_times_after`): its latest time is found once."""
+    latest: dict[int, float] = {}
+    demand = []
+    for i, (state, t) in enumerate(zip(states, t_rel, strict=True)):
+        if t is None or not len(t):
+            demand.append((state.agent_id, 0))
+            continue
+        last = latest.get(id(t))
+        if last is None:
+            last = latest[id(t)] = float(t.max())
+        demand.append((state.agent_id, sets[i].tube_index(last)))
+    services.tube_demand.note_many(demand)
 
 
 def _answer_in_time(

@@ -575,6 +575,7 @@ def _respond_all(
     if points.batch:
         answers = batch_answers(probed, points, radii, request, CLEARANCE_LIMIT)
         batches: list[Any] | None = answers.answers
+        batch_field = answers.field
         rows: list[list[float]] = [[] for _ in states]
         first = np.full(len(states), -1)
         colliding, least = answers.colliding, answers.least
@@ -582,6 +583,7 @@ def _respond_all(
         clearance, first = clearance_rows(points.point_distances(np.stack(probed)), radii)
         colliding = (clearance < 0.0).any(axis=1).tolist()  # a point in C
         batches, rows, least = None, clearance.tolist(), clearance.min(axis=1)
+        batch_field = ""
     times, horizon = points.times, services.horizon_s()
     _count_sources(services, exact, coarse)
     answered = (exact, coarse, labels, colliding)
@@ -607,17 +609,24 @@ def _respond_all(
                 "collision_witnessed": i in witnessed,
             }
         )
-    if batches is None:
-        # One validation of every answer (in pydantic's compiled core): cheaper than building
-        # each model in Python, and every value checked.
-        results = _ANSWERS.validate_python(fields)
-    else:  # a batch's answers per trajectory are not validated again, item by item
-        results = [
-            CollisionCheckResponse.model_construct(**f, **{answers.field: batches[i]})
-            for i, f in enumerate(fields)
-        ]
+    results = _answers_of(fields, batches, batch_field)
     _note_demand(services, results, least, points.batch)
     return results
+
+
+def _answers_of(
+    fields: list[dict[str, Any]], batches: list[Any] | None, batch_field: str
+) -> list[CollisionCheckResponse]:
+    """The answers from their fields: a check of one trajectory's validated together in
+    pydantic's compiled core (cheaper than building each model in Python, and every value
+    checked); a batch's built as they are, each with its answers per trajectory
+    (``batches[i]`` as ``batch_field``), which are not validated again item by item."""
+    if batches is None:
+        return _ANSWERS.validate_python(fields)  # type: ignore[no-any-return]
+    return [
+        CollisionCheckResponse.model_construct(**f, **{batch_field: batches[i]})
+        for i, f in enumerate(fields)
+    ]
 
 
 #: The answers of a check of one trajectory, validated together.

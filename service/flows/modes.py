@@ -280,6 +280,8 @@ def select_modes(
     p = np.asarray(posterior, dtype=np.float64)
     if not (0.0 < mode_mass <= 1.0 and 0.0 <= mode_floor < 1.0):
         raise ValueError("mode_mass must lie in (0, 1] and mode_floor in [0, 1)")
+    if p.size == 1:  # a single Gaussian: the loop below takes its mode unless its mass is none
+        return [] if p[0] <= 0.0 else [0]
     order = sorted(range(p.size), key=lambda m: (-p[m], m))
     chosen: set[int] = set()
     total = 0.0

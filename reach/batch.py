@@ -78,7 +78,11 @@ def _same_size_pass(
     b = np.stack([s.boxes for s in sets])  # [A, M, 4]
     if any(t is not None for t in t_rel):  # time-indexed: the boxes up to each point's tube
         index = _tube_indices(sets, t_rel, len(xy_world))  # [A, N]
-        until = np.take_along_axis(np.stack([frt.boxes_until for frt in sets]), index, axis=1)
+        first = sets[0].boxes_until
+        if all(frt.boxes_until is first for frt in sets):  # one engine's sets share it
+            until = first[index]
+        else:
+            until = np.take_along_axis(np.stack([frt.boxes_until for frt in sets]), index, axis=1)
     else:
         until = np.full(x.shape, b.shape[1])
     return list(box_union_distances_until(x, y, b, until))
@@ -86,14 +90,21 @@ def _same_size_pass(
 
 def _tube_indices(sets: list[BoxTubeSet], t_rel: list[np.ndarray | None], n: int) -> np.ndarray:
     """``FRTSet.tube_indices`` of each set's times ([A, N]; the last tube where a time is None),
-    in one vectorised call where the sets share their slices (one engine's sets do)."""
+    found once per array of times where the sets share their slices (one engine's sets do; the
+    agents of a frame share their array of times)."""
     first = sets[0]
     grid = (first.slice_dt, first.horizon_s, first.n_slices)
     if all(t is not None for t in t_rel) and all(
         (s.slice_dt, s.horizon_s, s.n_slices) == grid for s in sets
     ):
-        t = np.stack([np.asarray(v, dtype=np.float64).reshape(-1) for v in t_rel])  # type: ignore[arg-type]
-        return first.tube_indices(t).reshape(t.shape)
+        out = np.empty((len(sets), n), dtype=int)
+        found: dict[int, np.ndarray] = {}
+        for a, t in enumerate(t_rel):
+            row = found.get(id(t))
+            if row is None:
+                row = found[id(t)] = first.tube_indices(t)  # type: ignore[arg-type]
+            out[a] = row
+        return out
     return np.stack(
         [
             np.full(n, frt.n_slices - 1) if t is None else frt.tube_indices(t)

@@ -28,10 +28,10 @@ class Pose:
 def human_frames(xy_world: np.ndarray, poses: Sequence[Pose]) -> tuple[np.ndarray, np.ndarray]:
     """World points [N, 2] in the frame of each of A humans (origin at the human, heading 0):
     x, y [A, N]. One definition for a single set and for a check of many."""
-    c = np.array([[math.cos(p.heading)] for p in poses])
-    s = np.array([[math.sin(p.heading)] for p in poses])
-    dx = xy_world[None, :, 0] - np.array([[p.x] for p in poses])
-    dy = xy_world[None, :, 1] - np.array([[p.y] for p in poses])
+    c = np.array([math.cos(p.heading) for p in poses], dtype=np.float64)[:, None]
+    s = np.array([math.sin(p.heading) for p in poses], dtype=np.float64)[:, None]
+    dx = xy_world[None, :, 0] - np.array([p.x for p in poses], dtype=np.float64)[:, None]
+    dy = xy_world[None, :, 1] - np.array([p.y for p in poses], dtype=np.float64)[:, None]
     return c * dx + s * dy, -s * dx + c * dy
 
 

@@ -30,7 +30,7 @@ from collections import OrderedDict
 from collections.abc import Callable, Hashable, Sequence
 from concurrent.futures import BrokenExecutor, CancelledError, Executor, Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 from service.runtime.demand import ExactDemand
 from service.runtime.metrics import Metrics
@@ -39,8 +39,10 @@ from service.runtime.refiner import Refinement, RefinementQueue, RefinementRule
 log = logging.getLogger("frt.scheduler")
 
 
-@dataclass(frozen=True)
-class FRTKey:
+class FRTKey(NamedTuple):
+    """An agent's version of a set and the digest of its inputs (a named tuple: hashed and
+    compared in C, as the caches and queues do hundreds of times a check)."""
+
     agent_id: str  # "" for the stateless endpoint
     version: int
     digest: str

@@ -38,7 +38,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from reach.batch import tube_clearances
-from reach.distances import box_union_distances
+from reach.distances import box_union_distances_until
 from reach.frames import paired_human_frames
 from reach.sets import BoxTubeSet, FRTSet
 from reach.union import box_members
@@ -116,10 +116,11 @@ class AuditLedger:
             if entry is None:
                 return []
             last, earliest = entry.last_scored, t - self._spacing_s + HORIZON_SLACK_S
-            due = [
+            due = [  # ServedVersion.covers, inline: an agent has some 30 versions to look at
                 v
                 for v in entry.versions
-                if v.covers(t) and last.get(v.version, -math.inf) <= earliest
+                if v.t0 < t <= v.horizon_end + HORIZON_SLACK_S
+                and last.get(v.version, -math.inf) <= earliest
             ]
             for v in due:
                 last[v.version] = t
@@ -306,28 +307,20 @@ def _boxes_of(frt: FRTSet, exact: bool) -> list[BoxTubeSet]:
     return [] if exact else box_members(frt)
 
 
-#: Box sets :func:`_box_distances` measures in one pass: its [sets, boxes] temporaries stay in the
-#: cache (a frame's 3 000 at once run at half the speed).
-_SETS_AT_ONCE = 512
-
-
 def _box_distances(sets: list[BoxTubeSet], xy: np.ndarray, t_rel: np.ndarray) -> np.ndarray:
-    """``sets[i].clearance(xy[i], t_rel[i])`` of each i (``BoxTubeSet.clearance``'s arithmetic),
-    together for the sets with as many boxes, ``_SETS_AT_ONCE`` at a time."""
+    """``sets[i].clearance(xy[i], t_rel[i])`` of each i (``BoxTubeSet.clearance``'s arithmetic,
+    ``reach.distances.box_union_distances_until``), together for the sets with as many boxes."""
     out = np.empty(len(sets))
     groups: dict[int, list[int]] = {}
     for i, frt in enumerate(sets):
         groups.setdefault(len(frt.boxes), []).append(i)
-    for m, members in groups.items():
-        for a in range(0, len(members), _SETS_AT_ONCE):
-            part = members[a : a + _SETS_AT_ONCE]
-            group = [sets[i] for i in part]
-            x, y = paired_human_frames(xy[part], [s.pose for s in group])
-            limit = _boxes_until(group, t_rel[part])
-            boxes = np.concatenate([s.boxes for s in group]).reshape(len(group), 1, m, 4)
-            counted = (np.arange(m)[None, :] < limit[:, None])[:, None, :]  # [P, 1, M]
-            found = box_union_distances(x[:, None, None], y[:, None, None], boxes, counted)
-            out[part] = found[:, 0]
+    for members in groups.values():
+        group = [sets[i] for i in members]
+        x, y = paired_human_frames(xy[members], [s.pose for s in group])
+        limit = _boxes_until(group, t_rel[members])
+        boxes = np.stack([s.boxes for s in group])  # [P, M, 4]
+        found = box_union_distances_until(x[:, None], y[:, None], boxes, limit[:, None])
+        out[members] = found[:, 0]
     return out
 
 

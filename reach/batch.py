@@ -75,7 +75,7 @@ def _same_size_pass(
     sets: list[BoxTubeSet], xy_world: np.ndarray, t_rel: list[np.ndarray | None]
 ) -> list[np.ndarray]:
     x, y = human_frames(xy_world, [s.pose for s in sets])  # [A, N]
-    b = np.stack([s.boxes for s in sets])  # [A, M, 4]
+    b = np.concatenate([s.boxes for s in sets]).reshape(len(sets), -1, 4)  # [A, M, 4]
     if any(t is not None for t in t_rel):  # time-indexed: the boxes up to each point's tube
         index = _tube_indices(sets, t_rel, len(xy_world))  # [A, N]
         first = sets[0].boxes_until

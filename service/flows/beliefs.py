@@ -112,9 +112,9 @@ def _updated(steps: Sequence[BeliefStep], members: list[int], joints: list[_Prio
     scored = [j for j, i in enumerate(members) if steps[i].action is not None]
     if scored:
         means, covs = _first_steps([priors[j] for j in scored])
-        actions = np.stack([steps[members[j]].action for j in scored])  # type: ignore[misc]
+        actions = np.array([steps[members[j]].action for j in scored])  # type: ignore[misc]
         epsilons = np.array([steps[members[j]].epsilon for j in scored], dtype=np.float64)
-        betas = np.stack([steps[members[j]].betas for j in scored])
+        betas = np.array([steps[members[j]].betas for j in scored])
         log_probs[scored] = joint_update(
             log_probs[scored], weights[scored], epsilons, betas, (actions, means, covs)
         )
@@ -139,13 +139,13 @@ def _carried(steps: Sequence[BeliefStep], joints: list[_Prior | None]) -> list[n
             if steps[i].weights.size == shape[0]:
                 out[i] = joints[i][0]  # type: ignore[index]
         if moved:
-            stacked = np.stack([joints[i][0] for i in moved])  # type: ignore[index]
+            stacked = np.array([joints[i][0] for i in moved])  # type: ignore[index]
             marginals.update(zip(moved, joint_beta_marginals(stacked), strict=True))
     restarted = list(marginals)
     for _, members in groups([steps[i].weights.size for i in restarted]).items():
         ids = [restarted[k] for k in members]
-        weights = np.stack([steps[i].weights for i in ids])
-        joint = joint_of_beta_beliefs(np.stack([marginals[i] for i in ids]), weights)
+        weights = np.array([steps[i].weights for i in ids])
+        joint = joint_of_beta_beliefs(np.array([marginals[i] for i in ids]), weights)
         for j, i in enumerate(ids):
             out[i] = joint[j]
     return out  # type: ignore[return-value]
@@ -169,8 +169,8 @@ def summarised(joints: Sequence[Joint]) -> list[Joint]:
     marginal belief over beta."""
     out: list[Joint | None] = [None] * len(joints)
     for _, members in groups([j.log_probs.shape for j in joints]).items():
-        log_probs = np.stack([joints[i].log_probs for i in members])
-        betas = np.stack([joints[i].betas for i in members])
+        log_probs = np.array([joints[i].log_probs for i in members])
+        betas = np.array([joints[i].betas for i in members])
         posterior = joint_mode_probs(log_probs)
         mode_betas = joint_mode_betas(betas, log_probs)
         marginal = Belief.rows(betas, joint_beta_marginals(log_probs))

@@ -270,8 +270,8 @@ def _fit(rows: list[BoundsRow], settings: Settings) -> list[list[float]]:
         onsets=np.array([r.config.rescue_onset for r in rows], dtype=np.float64),
         limits=np.array([r.limits for r in rows], dtype=np.float64),
     )
-    means = np.stack([r.prediction.mixture.means[r.m] for r in rows])
-    covs = np.stack([r.prediction.mixture.covs[r.m] for r in rows])
+    means = np.array([r.prediction.mixture.means[r.m] for r in rows])
+    covs = np.array([r.prediction.mixture.covs[r.m] for r in rows])
     bounds = control_bounds_rows(
         means,
         covs,

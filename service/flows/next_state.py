@@ -50,7 +50,6 @@ from service.wire.errors import AgentClassChangedError, APIError, FieldError
 from service.wire.limits import RequestLimits, check_prediction_steps
 from service.wire.schemas import (
     MAX_MODES,
-    ControlBoundsOut,
     ModeOut,
     ObservationPrediction,
     ObservationRequest,
@@ -485,7 +484,9 @@ def bounds_fields(values: Sequence[float]) -> dict[str, float]:
 
 
 def modes_fields(modes: dict[str, Any] | None) -> list[dict[str, Any]] | None:
-    """:func:`modes_out` as the fields of each ``ModeOut``."""
+    """The ``modes`` of a response as the fields of each ``ModeOut``: per mode, in the order
+    given, its weight, posterior, beta and whether (with which bounds) the served set holds it;
+    None for a single Gaussian."""
     if modes is None:
         return None
     mode_set = ModeSet.from_dict(modes)
@@ -504,20 +505,6 @@ def modes_fields(modes: dict[str, Any] | None) -> list[dict[str, Any]] | None:
 
 
 def modes_out(modes: dict[str, Any] | None) -> list[ModeOut] | None:
-    """The ``modes`` of a response: per mode, in the order given, its weight, posterior, beta and
-    whether (with which bounds) the served set holds it; None for a single Gaussian."""
-    if modes is None:
-        return None
-    mode_set = ModeSet.from_dict(modes)
-    bounds = dict(zip(mode_set.set, mode_set.bounds, strict=True))
-    weights = mode_set.belief["weights"]
-    return [
-        ModeOut(
-            weight=float(weights[m]),
-            posterior=float(p),
-            beta=float(mode_set.beta[m]),
-            in_set=m in bounds,
-            control_bounds=ControlBoundsOut.from_list(bounds[m]) if m in bounds else None,
-        )
-        for m, p in enumerate(mode_set.posterior)
-    ]
+    """:func:`modes_fields` as models."""
+    fields = modes_fields(modes)
+    return None if fields is None else [ModeOut.model_validate(f) for f in fields]

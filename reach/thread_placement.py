@@ -55,7 +55,7 @@ def keep_helpers_off(cpu: int) -> None:
                 continue
             try:
                 os.sched_setaffinity(native_id, wanted)
-            except OSError:  # the thread has ended
+            except OSError:  # the thread has ended, or may not be placed so: left alone
                 del _helpers[native_id]
                 continue
             _helpers[native_id] = (allowed, wanted)

@@ -66,9 +66,6 @@ class ServedVersion:
     #: The map and the assumptions the version was answered under (None: no map, or none).
     road: VersionRoad | None = None
 
-    def covers(self, t: float) -> bool:
-        return self.t0 < t <= self.horizon_end + HORIZON_SLACK_S
-
 
 class _AgentAudit:
     """One agent's recent versions, when each was last scored, its counts (``fold``) and when it
@@ -116,7 +113,7 @@ class AuditLedger:
             if entry is None:
                 return []
             last, earliest = entry.last_scored, t - self._spacing_s + HORIZON_SLACK_S
-            due = [  # ServedVersion.covers, inline: an agent has some 30 versions to look at
+            due = [  # those whose horizon covers t, t0 < t <= horizon_end
                 v
                 for v in entry.versions
                 if v.t0 < t <= v.horizon_end + HORIZON_SLACK_S

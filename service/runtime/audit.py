@@ -326,11 +326,9 @@ def _boxes_until(sets: list[BoxTubeSet], t_rel: np.ndarray) -> np.ndarray:
     """How many boxes of each set its tube up to its time holds (``BoxTubeSet.clearance``'s),
     in one call where the sets share their slices and layout (one engine's do)."""
     first = sets[0]
+    until, grid = first.boxes_until, (first.slice_dt, first.horizon_s, first.n_slices)
     shared = all(
-        s.boxes_until is first.boxes_until
-        and (s.slice_dt, s.horizon_s, s.n_slices)
-        == (first.slice_dt, first.horizon_s, first.n_slices)
-        for s in sets
+        s.boxes_until is until and (s.slice_dt, s.horizon_s, s.n_slices) == grid for s in sets
     )
     if shared:
         return first.boxes_until[first.tube_indices(t_rel)]  # type: ignore[no-any-return]
@@ -349,19 +347,26 @@ def fold(
     present once one has)."""
     out = dict(counts) if counts else {"audited": 0, "missed_k": 0, "missed_c": 0, "exact": 0}
     out.setdefault("last_miss", None)
+    missed_k = missed_c = exact = 0
+    worst: Scored | None = None  # the first of the misses of K farthest outside it
+    for s in scored:  # one pass: a frame folds some 800 positions
+        if not s.in_k:
+            missed_k += 1
+            if worst is None or s.distance_to_k > worst.distance_to_k:
+                worst = s
+        missed_c += not s.in_c
+        exact += s.exact
     out["audited"] += len(scored)
-    out["missed_k"] += sum(not s.in_k for s in scored)
-    out["missed_c"] += sum(not s.in_c for s in scored)
-    out["exact"] += sum(s.exact for s in scored)
+    out["missed_k"] += missed_k
+    out["missed_c"] += missed_c
+    out["exact"] += exact
     off = [name for s in scored for name in s.off] if mapped else []
     if off:
         by_name = dict(out.get("assumption_misses") or {})
         for name in off:
             by_name[name] = by_name.get(name, 0) + 1
         out["assumption_misses"] = by_name
-    misses = [s for s in scored if not s.in_k]
-    if misses:
-        worst = max(misses, key=lambda s: s.distance_to_k)
+    if worst is not None:
         out["last_miss"] = {
             "timestamp": t,
             "frt_version": worst.version,

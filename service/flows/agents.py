@@ -35,7 +35,6 @@ from service.flows.confidence import Belief
 from service.flows.next_state import (
     ObservedPrediction,
     StateInputs,
-    bounds_fields,
     modes_fields,
     modes_out,
     next_state,
@@ -71,10 +70,9 @@ log = logging.getLogger("frt.services")
 
 def belief_out(belief: Belief) -> tuple[BeliefOut, BeliefOut]:
     """(probabilities, beta values) keyed as API.md does: beta_low and beta_high."""
-    probs, betas = belief.probs, belief.betas
     return (
-        BeliefOut(beta_low=float(probs[0]), beta_high=float(probs[-1])),
-        BeliefOut(beta_low=float(betas[0]), beta_high=float(betas[-1])),
+        BeliefOut(**BeliefOut.fields_of(belief.probs)),
+        BeliefOut(**BeliefOut.fields_of(belief.betas)),
     )
 
 
@@ -361,13 +359,12 @@ def _response_fields(
     # a stored belief is normalised already, and normalising it again changes no bit).
     same = last_built.to_dict() == state.belief
     belief = last_built if same else Belief.from_dict(state.belief)
-    probs = belief.probs
     return {
         "agent_id": state.agent_id,
         "timestamp": state.timestamp,
         "beta": belief.beta,
-        "belief": {"beta_low": float(probs[0]), "beta_high": float(probs[-1])},
-        "control_bounds": bounds_fields(state.control_bounds),
+        "belief": BeliefOut.fields_of(belief.probs),
+        "control_bounds": ControlBoundsOut.fields_of(state.control_bounds),
         "frt_version": state.frt_version,
         # A previous state existed exactly when the version went past 1.
         "action_scored": request.observed_action is not None and state.frt_version > 1,

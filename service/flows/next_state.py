@@ -50,6 +50,7 @@ from service.wire.errors import AgentClassChangedError, APIError, FieldError
 from service.wire.limits import RequestLimits, check_prediction_steps
 from service.wire.schemas import (
     MAX_MODES,
+    ControlBoundsOut,
     ModeOut,
     ObservationPrediction,
     ObservationRequest,
@@ -477,12 +478,6 @@ def _assembled(
     return state, belief  # type: ignore[return-value]
 
 
-def bounds_fields(values: Sequence[float]) -> dict[str, float]:
-    """The eight bounds in contract order (``reach.contract.BOUND_COLUMNS``) as the fields of
-    ``ControlBoundsOut``."""
-    return dict(zip(BOUND_COLUMNS, map(float, values), strict=True))
-
-
 def modes_fields(modes: dict[str, Any] | None) -> list[dict[str, Any]] | None:
     """The ``modes`` of a response as the fields of each ``ModeOut``: per mode, in the order
     given, its weight, posterior, beta and whether (with which bounds) the served set holds it;
@@ -498,7 +493,7 @@ def modes_fields(modes: dict[str, Any] | None) -> list[dict[str, Any]] | None:
             "posterior": float(p),
             "beta": float(mode_set.beta[m]),
             "in_set": m in bounds,
-            "control_bounds": bounds_fields(bounds[m]) if m in bounds else None,
+            "control_bounds": ControlBoundsOut.fields_of(bounds[m]) if m in bounds else None,
         }
         for m, p in enumerate(mode_set.posterior)
     ]

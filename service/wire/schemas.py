@@ -9,6 +9,7 @@ tighter limits of the server settings (``max_prediction_steps``, ``max_trajector
 from __future__ import annotations
 
 import base64
+from collections.abc import Sequence
 from typing import Annotated, Any, Literal, NotRequired
 
 import numpy as np
@@ -274,11 +275,16 @@ class ControlBoundsOut(Response):
     u1_max_end: float
     u2_max_end: float
 
+    @staticmethod
+    def fields_of(values: Sequence[float]) -> dict[str, float]:
+        """The eight bounds in contract order (``reach.contract.BOUND_COLUMNS``) as this model's
+        fields, floats."""
+        return dict(zip(BOUND_COLUMNS, map(float, values), strict=True))
+
     @classmethod
-    def from_list(cls, values: list[float]) -> ControlBoundsOut:
-        """The eight bounds in contract order (``reach.contract.BOUND_COLUMNS``), as floats."""
-        pairs = zip(BOUND_COLUMNS, values, strict=True)
-        return cls.model_construct(**{column: float(v) for column, v in pairs})
+    def from_list(cls, values: Sequence[float]) -> ControlBoundsOut:
+        """The model of :meth:`fields_of`."""
+        return cls.model_construct(**cls.fields_of(values))
 
 
 class BeliefOut(Response):
@@ -286,6 +292,12 @@ class BeliefOut(Response):
 
     beta_low: float
     beta_high: float
+
+    @staticmethod
+    def fields_of(values: Sequence[float]) -> dict[str, float]:
+        """A value per hypothesis, ascending in beta, as this model's fields (API.md keys them
+        by the lowest and the highest)."""
+        return {"beta_low": float(values[0]), "beta_high": float(values[-1])}
 
 
 Heading = Annotated[float, Field(ge=-ANGLE_MAX, le=ANGLE_MAX, description="radians from +x, CCW")]

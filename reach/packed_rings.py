@@ -288,12 +288,14 @@ def _segment_distance2(segments, e, x, y):
 
 
 @numba.njit(cache=True, inline="always")
-def _box_bound(box, x, y):
-    """Signed distance to the box: a lower bound of the signed distance to a polygon inside it."""
-    if not box[0] <= box[2]:
+def _box_bound(boxes, g, x, y):
+    """Signed distance to polygon g's bounding box: a lower bound of the signed distance to the
+    polygon."""
+    x_lo, x_hi = boxes[g, 0], boxes[g, 2]
+    if not x_lo <= x_hi:
         return np.inf  # an empty polygon's
-    dx = max(box[0] - x, x - box[2])
-    dy = max(box[1] - y, y - box[3])
+    dx = max(x_lo - x, x - x_hi)
+    dy = max(boxes[g, 1] - y, y - boxes[g, 3])
     if dx <= 0.0 and dy <= 0.0:
         return max(dx, dy)
     return np.sqrt(max(dx, 0.0) ** 2 + max(dy, 0.0) ** 2)
@@ -319,11 +321,12 @@ def _all_signed(
 
 
 @numba.njit(cache=True, inline="always")
-def _evaluate(geometry, xs, ys, which, group, p, out):
+def _evaluate(rings, which, xs, ys, group, p, out):
     """Point p's value, the least signed distance of its probes, whose lower bounds are in
     ``out``: probes measured (into ``out``) in increasing order of their bounds until the next
-    bound is no less than the least distance found (the rest keep their bounds)."""
-    segments, segment_starts, chunk_boxes, chunk_starts = geometry[:4]
+    bound is no less than the least distance found (the rest keep their bounds). ``rings``: the
+    pack's segments, segment starts, chunk boxes and chunk starts."""
+    segments, segment_starts, chunk_boxes, chunk_starts = rings
     first = p * group
     if group == 1:
         out[first] = _signed(
@@ -355,10 +358,9 @@ def _evaluate(geometry, xs, ys, which, group, p, out):
 
 
 @numba.njit(cache=True, inline="always")
-def _refine(geometry, xs, ys, which, group, p, out):
+def _refine(supports, directions, which, xs, ys, group, p, out):
     """Point p's value with each probe's bound raised to its support bound where that is
     larger."""
-    supports, directions = geometry[5], geometry[6]
     least = np.inf
     for i in range(p * group, (p + 1) * group):
         out[i] = max(out[i], _support_bound(supports, directions, which[i], xs[i], ys[i]))
@@ -367,69 +369,74 @@ def _refine(geometry, xs, ys, which, group, p, out):
 
 
 @numba.njit(cache=True, inline="always")
-def _box_bounds(geometry, xs, ys, which, group, a, b, value, out):
-    """The box bounds of points ``a:b`` (their probes' into ``out``, the points' into
-    ``value``); returns the point of least bound (-1 if every bound is infinite)."""
-    boxes = geometry[4]
+def _trajectory(rings, bounds, which, xs, ys, group, a, b, threshold, exact, value, out):
+    """The values of points ``a:b`` (module docstring), from their box bounds in ``value`` (their
+    probes' in ``out``): the point of least bound evaluated, then, in order, each point whose
+    bound is below the least value found refined and, if still below, evaluated; if the least
+    value is below ``threshold``, the points in order again until the first whose distance is.
+    ``bounds``: the pack's support values and :data:`DIRECTIONS`; ``exact``: the points
+    evaluated."""
+    supports, directions = bounds
     first, first_bound = -1, np.inf
     for p in range(a, b):
-        bound = np.inf
-        for i in range(p * group, (p + 1) * group):
-            out[i] = _box_bound(boxes[which[i]], xs[i], ys[i])
-            bound = min(bound, out[i])
-        value[p] = bound
-        if bound < first_bound:
-            first, first_bound = p, bound
-    return first
-
-
-@numba.njit(cache=True, inline="always")
-def _least(geometry, xs, ys, which, group, a, b, exact, value, out):
-    """The least value of points ``a:b`` (module docstring): the point of least box bound
-    evaluated, then, in order, each point whose bound is below the least value found refined
-    and, if still below, evaluated (``exact``, ``value``, their probes' ``out``)."""
-    first = _box_bounds(geometry, xs, ys, which, group, a, b, value, out)
-    exact[a:b] = False
+        if value[p] < first_bound:
+            first, first_bound = p, value[p]
     if first < 0:
-        return np.inf
-    least = _evaluate(geometry, xs, ys, which, group, first, out)
+        return  # every bound infinite: no polygon at these points' times
+    least = _evaluate(rings, which, xs, ys, group, first, out)
     value[first] = least
     exact[first] = True
     for p in range(a, b):
         if exact[p] or value[p] >= least:
             continue
-        value[p] = _refine(geometry, xs, ys, which, group, p, out)
+        value[p] = _refine(supports, directions, which, xs, ys, group, p, out)
         if value[p] >= least:
             continue
-        value[p] = _evaluate(geometry, xs, ys, which, group, p, out)
+        value[p] = _evaluate(rings, which, xs, ys, group, p, out)
         exact[p] = True
         least = min(least, value[p])
-    return least
+    if least >= threshold:
+        return
+    for p in range(a, b):
+        if value[p] >= threshold:
+            continue
+        if not exact[p]:
+            value[p] = _refine(supports, directions, which, xs, ys, group, p, out)
+            if value[p] >= threshold:
+                continue
+            value[p] = _evaluate(rings, which, xs, ys, group, p, out)
+            exact[p] = True
+        if value[p] < threshold:
+            break
 
 
 @numba.njit(cache=True, nogil=True)
 def _surrogates(geometry, x0, y0, c, s, world_x, world_y, which, spans, threshold, out):
     begins, ends, group = spans
+    segments, segment_starts, chunk_boxes, chunk_starts, boxes, supports, directions = geometry
+    rings = (segments, segment_starts, chunk_boxes, chunk_starts)
+    bounds = (supports, directions)
     xs = np.empty(len(world_x))
     ys = np.empty(len(world_y))
     for i in range(len(world_x)):
         xs[i], ys[i] = _to_frame(x0, y0, c, s, world_x[i], world_y[i])
+        out[i] = _box_bound(boxes, which[i], xs[i], ys[i])
     points = len(xs) // group
     exact = np.zeros(points, dtype=np.bool_)
+    # A point of one probe is its value: the compiler, given the constant 1 and one array,
+    # drops the loops over a point's probes.
+    if group == 1:
+        for k in range(len(begins)):
+            _trajectory(
+                rings, bounds, which, xs, ys, 1, begins[k], ends[k], threshold, exact, out, out
+            )
+        return
     value = np.empty(points, dtype=np.float64)
+    for p in range(points):
+        value[p] = out[p * group]
+        for i in range(p * group + 1, (p + 1) * group):
+            value[p] = min(value[p], out[i])
     for k in range(len(begins)):
-        a, b = begins[k], ends[k]
-        least = _least(geometry, xs, ys, which, group, a, b, exact, value, out)
-        if least >= threshold:
-            continue
-        for p in range(a, b):
-            if value[p] >= threshold:
-                continue
-            if not exact[p]:
-                value[p] = _refine(geometry, xs, ys, which, group, p, out)
-                if value[p] >= threshold:
-                    continue
-                value[p] = _evaluate(geometry, xs, ys, which, group, p, out)
-                exact[p] = True
-            if value[p] < threshold:
-                break
+        _trajectory(
+            rings, bounds, which, xs, ys, group, begins[k], ends[k], threshold, exact, value, out
+        )

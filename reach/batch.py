@@ -391,21 +391,39 @@ def trajectory_reductions(
     return least, first
 
 
+@numba.njit(cache=True, inline="always")
+def _point_value(probed, p, group):
+    """Point p's least probe distance, NaN if one of its probes' is (numpy's minimum)."""
+    d = probed[p * group]
+    for i in range(p * group + 1, (p + 1) * group):
+        if d == d and (probed[i] < d or probed[i] != probed[i]):
+            d = probed[i]
+    return d
+
+
+@numba.njit(cache=True, inline="always")
+def _clearance(d, offset, radius, limit):
+    c = (d - offset) - radius
+    return -limit if c != c else min(max(c, -limit), limit)
+
+
 @numba.njit(cache=True)
 def _reduce(probed, begins, points, group, offset, radius, limit, least, first):
+    # A clearance is a non-decreasing function of its point's value (NaN its least): the least
+    # clearance is the least value's, and only where that is below zero is a point below zero.
     for k in range(len(begins)):
         end = begins[k + 1] if k + 1 < len(begins) else points
-        smallest = np.inf
-        first[k] = points
+        smallest, undefined = np.inf, False
         for p in range(begins[k], end):
-            d = probed[p * group]
-            for i in range(p * group + 1, (p + 1) * group):
-                if d == d and (probed[i] < d or probed[i] != probed[i]):
-                    d = probed[i]
-            c = (d - offset) - radius
-            c = -limit if c != c else min(max(c, -limit), limit)
-            if c < smallest:
-                smallest = c
-            if c < 0.0 and first[k] == points:
-                first[k] = p
-        least[k] = smallest
+            d = _point_value(probed, p, group)
+            if d < smallest:
+                smallest = d
+            elif d != d:
+                undefined = True
+        least[k] = -limit if undefined else _clearance(smallest, offset, radius, limit)
+        first[k] = points
+        if least[k] < 0.0:
+            for p in range(begins[k], end):
+                if _clearance(_point_value(probed, p, group), offset, radius, limit) < 0.0:
+                    first[k] = p
+                    break

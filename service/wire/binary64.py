@@ -5,8 +5,9 @@ A batch of 500 trajectories of 30 points is three columns of 160 kB of base64, w
 library checks with a regular expression and then decodes, two passes in all.
 :func:`read_binary64` takes exactly the texts of RFC 4648 section 4 with their padding: a length
 that is a multiple of four, the alphabet ``A-Z a-z 0-9 + /`` only, and ``=`` only as the last one
-or two characters (no line breaks, spaces or other characters). The kernel is compiled (or loaded
-from numba's cache) when this module is imported, so that no request waits for it.
+or two characters (no line breaks, spaces or other characters). :func:`first_beyond` finds the
+first number out of a range in one pass without temporary arrays. The kernels are compiled (or
+loaded from numba's cache) when this module is imported, so that no request waits for them.
 """
 
 from __future__ import annotations
@@ -34,7 +35,22 @@ def read_binary64(text: str) -> np.ndarray | None:
     size = _decode(raw, VALUES, out)
     if size < 0 or size % 8:
         return None
-    return out[:size].view("<f8").astype(np.float64)
+    numbers = out[:size].view("<f8")
+    return numbers if numbers.dtype.isnative else numbers.astype(np.float64)
+
+
+def first_beyond(numbers: np.ndarray, limit: float) -> int:
+    """The index of the first of ``numbers`` that is not finite or is beyond +-``limit``; -1 if
+    none is."""
+    return int(_first_beyond(numbers, float(limit)))
+
+
+@numba.njit(cache=True)
+def _first_beyond(numbers, limit):
+    for i in range(len(numbers)):
+        if not abs(numbers[i]) <= limit:
+            return i
+    return -1
 
 
 @numba.njit(cache=True)
@@ -76,3 +92,4 @@ def _decode(text, values, out):
 
 
 _decode(np.frombuffer(b"AAAAAAAAAAA=", dtype=np.uint8), VALUES, np.empty(9, dtype=np.uint8))
+first_beyond(np.zeros(1), 1.0)

@@ -30,7 +30,7 @@ from typing_extensions import TypedDict
 
 from reach.constraints import DEFAULT_PIECES, DEFAULT_SIDES, PIECES_RANGE, SIDES_RANGE
 from reach.contract import BOUND_COLUMNS
-from service.wire.binary64 import read_binary64
+from service.wire.binary64 import first_beyond, read_binary64
 
 #: Hard caps on array lengths (the settings may only lower them).
 PREDICTION_STEPS_CAP = 4096
@@ -355,9 +355,9 @@ def _binary64_column(limit: float) -> Any:
             raise ValueError(
                 "not base64 (RFC 4648, padded, nothing else) of a whole number of 8-byte floats"
             )
-        bad = np.flatnonzero(~(np.abs(numbers) <= limit))
-        if len(bad):
-            raise ValueError(f"number {int(bad[0])} is not finite or beyond +-{limit:g}")
+        bad = first_beyond(numbers, limit)
+        if bad >= 0:
+            raise ValueError(f"number {bad} is not finite or beyond +-{limit:g}")
         return numbers
 
     def write(numbers: np.ndarray) -> str:

@@ -66,7 +66,7 @@ def test_the_corridor_hinge_raises_the_value_where_it_is_bounded(smoke_run, tmp_
     assert torch.isfinite(losses["total"])
     with torch.no_grad():
         before = net(inputs)[:, 0]
-    assert float(losses["corridor"]) == pytest.approx(float(torch.relu(lower - before).mean()))
+    assert losses["corridor"].item() == pytest.approx(float(torch.relu(lower - before).mean()))
     losses["total"].backward()
     with torch.no_grad():
         for p in net.parameters():

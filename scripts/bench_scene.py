@@ -13,6 +13,14 @@ waits behind frames and their audit, from the tick it was due at to its answer. 
 is printed with, beside it, the share whose verdict is known: those and the conservative
 collisions a reached position witnesses (``collision_witnessed``).
 
+``--phase-sweep`` gives the planners a period 3 % longer than the frames' so that, over the run,
+their checks come at every phase of the frame period; each check's answers are then counted by
+its phase (the time since the frame's tick, in tenths of the period): the conservative answers,
+the collisions and the exact answers per check, and the checks' latency from their tick. It shows
+whether the conservative answers wait on a frame just applied or on sets that do not keep up.
+Every run also prints how long the exact sets took from submission to ready, by their priority
+(``frt_exact_ready_seconds``: met, demanded, background).
+
 ``--baseline REV`` runs the same scene, in a second process started after this one, on the tree of
 git revision ``REV`` (``git archive`` into a temporary directory); both print one line each and
 ``--out`` keeps both. With ``--turns N`` both trees run in processes of their own, in turns, N
@@ -43,6 +51,8 @@ TRAJECTORY_POINTS = 20
 TRAJECTORY_DT = 0.1
 PLANNER_SPEED = 8.0
 M = TypeVar("M", bound=BaseModel)
+#: ``--phase-sweep``: the planners' period this much longer than the frames'.
+PHASE_SWEEP_STRETCH = 0.03
 
 
 def quantile_ms(values: list[float], q: float) -> float:
@@ -91,6 +101,7 @@ async def drive(args: argparse.Namespace) -> dict[str, Any]:
     check_s: list[float] = []
     verdicts: dict[str, int] = {}
     witnessed: list[str] = []  # the agents of conservative collisions said witnessed
+    phases: list[dict[str, float]] = []  # per check: its phase in the frame period, its answers
 
     async def framer() -> None:
         for k, body in enumerate(bodies):
@@ -101,11 +112,13 @@ async def drive(args: argparse.Namespace) -> dict[str, Any]:
             await frames.apply_frame(services, read_frame(body, FrameRequest))
             frame_s.append(time.perf_counter() - started)
 
+    period = (1.0 + PHASE_SWEEP_STRETCH if args.phase_sweep else 1.0) / args.hz
+
     async def planner(lane: float) -> None:
         await asyncio.sleep(args.warm + random.uniform(0.0, 1.0 / args.hz))
         start, k = time.monotonic(), 0
         while time.monotonic() - t0 < args.duration:
-            due = start + k / args.hz
+            due = start + k * period
             await asyncio.sleep(max(0.0, due - time.monotonic()))
             k += 1
             t = time.monotonic() - t0
@@ -121,6 +134,7 @@ async def drive(args: argparse.Namespace) -> dict[str, Any]:
             answer = await checks.check_agents_at_once(services, request, time.perf_counter())
             answer.model_dump_json()
             check_s.append(time.monotonic() - due)
+            phases.append(checked_at_phase((due - t0) * args.hz % 1.0, check_s[-1], answer.results))
             for result in answer.results:
                 verdicts[result.verdict] = verdicts.get(result.verdict, 0) + 1
                 if result.verdict == "conservative" and getattr(
@@ -133,9 +147,81 @@ async def drive(args: argparse.Namespace) -> dict[str, Any]:
     await asyncio.gather(framer(), *(planner(lane) for lane in lanes))
     elapsed = time.monotonic() - t0
     busy = (time.thread_time() - loop_cpu) / elapsed, (time.process_time() - process_cpu) / elapsed
+    ready = exact_ready(services.metrics.registry)
     await services.stop()
     result = summary(frame_s, check_s, verdicts, args.deadline_ms, len(witnessed))
-    return {**result, "cpu_per_s": busy}
+    if args.phase_sweep:
+        result["by_phase"] = by_phase(phases)
+    return {**result, "cpu_per_s": busy, **({"exact_ready": ready} if ready else {})}
+
+
+def exact_ready(registry: Any) -> dict[str, dict[str, float]]:
+    """Per priority (met, demanded, background), the exact sets made ready and their mean and
+    median time from submission to ready (the median as the upper edge of its histogram
+    bucket), from ``frt_exact_ready_seconds`` where the tree has it."""
+    buckets: dict[str, list[tuple[float, float]]] = {}
+    sums: dict[str, float] = {}
+    for family in registry.collect():
+        if family.name != "frt_exact_ready_seconds":
+            continue
+        for sample in family.samples:
+            priority = sample.labels.get("priority")
+            if sample.name.endswith("_bucket"):
+                edge = float(sample.labels["le"])
+                buckets.setdefault(priority, []).append((edge, sample.value))
+            elif sample.name.endswith("_sum"):
+                sums[priority] = sample.value
+    out = {}
+    for priority, cumulative in buckets.items():
+        cumulative.sort()
+        count = cumulative[-1][1]
+        if not count:
+            continue
+        median = next(edge for edge, seen in cumulative if seen >= count / 2)
+        out[priority] = {
+            "sets": count,
+            "mean_ms": round(1e3 * sums[priority] / count, 1),
+            "median_ms_at_most": 1e3 * median,
+        }
+    return out
+
+
+def checked_at_phase(phase: float, latency_s: float, results: list[Any]) -> dict[str, float]:
+    """One check of all agents at ``phase`` (0..1) of the frame period: its latency from its
+    tick, its conservative, colliding and exact answers."""
+    return {
+        "phase": phase,
+        "latency_ms": 1e3 * latency_s,
+        "conservative": sum(r.verdict == "conservative" for r in results),
+        "collisions": sum(bool(r.collision) for r in results),
+        "exact": sum(r.verdict == "exact" for r in results),
+    }
+
+
+def by_phase(checks: list[dict[str, float]], bins: int = 10) -> list[dict[str, Any]]:
+    """Per tenth of the frame period: the checks due in it, their answers per check and their
+    latency from their tick (p50 and largest)."""
+    rows = []
+    for b in range(bins):
+        inside = [c for c in checks if int(c["phase"] * bins) == b]
+        if not inside:
+            continue
+        latency = [c["latency_ms"] for c in inside]
+        rows.append(
+            {
+                "phase": [b / bins, (b + 1) / bins],
+                "checks": len(inside),
+                **{
+                    f"{kind}_per_check": round(sum(c[kind] for c in inside) / len(inside), 3)
+                    for kind in ("conservative", "collisions", "exact")
+                },
+                "latency_ms_p50_max": [
+                    round(quantile_ms([v / 1e3 for v in latency], 0.5), 1),
+                    round(max(latency), 1),
+                ],
+            }
+        )
+    return rows
 
 
 def summary(
@@ -174,6 +260,17 @@ def line(name: str, result: dict[str, Any]) -> str:
         f"{result['cpu_per_s'][0]:.2f}, the process {result['cpu_per_s'][1]:.2f}"
         if share is not None
         else "no answers"
+    )
+
+
+def phase_line(row: dict[str, Any]) -> str:
+    lo, hi = (round(100 * p) for p in row["phase"])
+    p50, largest = row["latency_ms_p50_max"]
+    return (
+        f"  phase {lo:3d}-{hi:3d} % of the period: {row['checks']} checks; per check "
+        f"{row['conservative_per_check']:.2f} conservative, {row['collisions_per_check']:.2f} "
+        f"colliding, {row['exact_per_check']:.2f} exact; from the tick p50 {p50:.1f} ms, "
+        f"largest {largest:.1f} ms"
     )
 
 
@@ -223,6 +320,11 @@ def parse(argv: list[str]) -> argparse.Namespace:
     p.add_argument("--duration", type=float, default=20.0, help="seconds of scene")
     p.add_argument("--warm", type=float, default=1.0, help="seconds before the planners start")
     p.add_argument("--baseline", help="a git revision to run the same scene on afterwards")
+    p.add_argument(
+        "--phase-sweep",
+        action="store_true",
+        help="planners 3 %% slower than the frames; answers counted by phase of the frame period",
+    )
     p.add_argument("--out", type=Path)
     p.add_argument("--json", action="store_true", help="print the result as one JSON line")
     p.add_argument(
@@ -267,6 +369,13 @@ def main(argv: list[str]) -> None:
         results[f"baseline {args.baseline}"] = baseline(args.baseline, forwarded)
     for name, found in results.items():
         print(line(name, found))
+        for row in found.get("by_phase", []):
+            print(phase_line(row))
+        for priority, ready in found.get("exact_ready", {}).items():
+            print(
+                f"  exact sets, {priority}: {ready['sets']:.0f}, submitted to ready mean "
+                f"{ready['mean_ms']:.1f} ms, median at most {ready['median_ms_at_most']:g} ms"
+            )
     if args.out:
         args.out.write_text(json.dumps(results, indent=2) + "\n")
 

@@ -400,6 +400,13 @@ def test_the_sets_of_agents_a_trajectory_met_start_before_the_other_demanded_one
     last.result(5)
     scheduler.submit(key("far-1", 1), lambda: None).result(5)
     assert order == ["met-2", "met-1", "near-2", "near-1", "far-2", "far-1"]
+    ready = scheduler._metrics.registry
+    counts = {
+        priority: ready.get_sample_value("frt_exact_ready_seconds_count", {"priority": priority})
+        for priority in ("met", "demanded", "background")
+    }
+    # busy, far-2, far-1, and far-1 once more (evicted from a cache of two by then)
+    assert counts == {"met": 2, "demanded": 2, "background": 4}
 
 
 def test_a_met_agent_ranks_above_a_near_one_and_both_expire() -> None:

@@ -97,6 +97,15 @@ class Metrics:
 
     def _define_demand(self, r: CollectorRegistry) -> None:
         """What demand-driven exact sets do: which sets start first, and the answers' verdicts."""
+        self.exact_ready_seconds = Histogram(
+            "frt_exact_ready_seconds",
+            "From an exact set's submission to its set ready (queued, transferred, computed), by "
+            "its priority when a worker took it: met (a planner's trajectory met the agent's "
+            "set), demanded (came near it) or background",
+            ["priority"],
+            buckets=LATENCY_BUCKETS,
+            registry=r,
+        )
         self.exact_set_starts = Counter(
             "frt_exact_set_starts",
             "Exact sets handed to a worker, by priority: demanded (a planner's recent check came "

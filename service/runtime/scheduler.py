@@ -443,6 +443,8 @@ class FRTScheduler:
         key = self._queue.pop(slots[0] if waited >= EXACT_OLDEST_AFTER_S else slots[-1])
         if demand is not None and not wanted:
             self._background.add(key)
+        if demand is not None and wanted:
+            self._pending[key].priority = "met" if met else "demanded"
         return key
 
     def _background_cap(self, demand: ExactDemand) -> int:
@@ -563,6 +565,9 @@ class FRTScheduler:
         if error is None:
             self._metrics.frt_compute_seconds.labels("exact").observe(seconds)
             self._metrics.exact_sets.labels(_origin(key, job)).inc()
+            self._metrics.exact_ready_seconds.labels(job.priority).observe(
+                time.perf_counter() - job.submitted
+            )
             if job.dispatched is not None:
                 transfer = time.perf_counter() - job.dispatched - seconds
                 self._metrics.exact_phase_seconds.labels("transfer").observe(max(transfer, 0.0))
@@ -612,6 +617,9 @@ class _Job:
     dispatched: float | None = None
     #: Submitted by the observation that stored its version on this replica.
     observed: bool = False
+    #: Its priority when a worker took it (``frt_exact_ready_seconds``): met, demanded or
+    #: background.
+    priority: str = "background"
 
 
 def _origin(key: FRTKey, job: _Job) -> str:

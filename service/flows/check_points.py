@@ -257,14 +257,15 @@ def _columns_of(
     starts = points.starts
     ends = np.append(starts[1:], points.n_points)
     hit = first < ends[None, :]
+    index, time = _first_collisions(hit, first, points)
+    collision, minimum = hit.tolist(), least.tolist()
     answers = []
-    for a, minimum in enumerate(least.tolist()):
-        index, time = _first_collisions(hit[a], first[a], points)
+    for a in range(len(minimum)):
         agent: dict[str, Any] = {
-            "collision": hit[a].tolist(),
-            "first_collision_index": index,
-            "first_collision_time": time,
-            "min_clearance": minimum,
+            "collision": collision[a],
+            "first_collision_index": index[a],
+            "first_collision_time": time[a],
+            "min_clearance": minimum[a],
         }
         if per_point is not None:
             values = per_point[a].tolist()
@@ -276,21 +277,24 @@ def _columns_of(
 
 def _first_collisions(
     hit: np.ndarray, first: np.ndarray, points: CheckPoints
-) -> tuple[list[int | None], list[float | None]]:
-    """Per trajectory of one agent, the index within it and the time of its first colliding
-    point (None for those that do not collide), from the rows ``first`` where ``hit``."""
-    index: list[int | None] = [None] * len(hit)
-    time: list[float | None] = [None] * len(hit)
+) -> tuple[list[list[int | None]], list[list[float | None]]]:
+    """Per agent, per trajectory, the index within it and the time of its first colliding point
+    (None for those that do not collide), from the rows ``first`` ([agents, trajectories])
+    where ``hit``."""
+    agents, count = hit.shape
+    index: list[list[int | None]] = [[None] * count for _ in range(agents)]
+    time: list[list[float | None]] = [[None] * count for _ in range(agents)]
     # Only the colliding trajectories carry an index and a time: filled in where they are.
-    collided = np.flatnonzero(hit)
-    at = first[collided]
-    for k, i, t in zip(
-        collided.tolist(),
-        (at - points.starts[collided]).tolist(),
+    rows, columns = np.nonzero(hit)
+    at = first[rows, columns]
+    for a, k, i, t in zip(
+        rows.tolist(),
+        columns.tolist(),
+        (at - points.starts[columns]).tolist(),
         points.times[at].tolist(),
         strict=True,
     ):
-        index[k], time[k] = i, t
+        index[a][k], time[a][k] = i, t
     return index, time
 
 

@@ -138,7 +138,7 @@ def _coordinate(point: dict, name: str, field: str, required: bool) -> float:
     value = point[name]
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise MapFormatError(field, f"must be a number, got {type(value).__name__}")
-    if not math.isfinite(value) or abs(value) > COORDINATE_LIMIT:
+    if abs(value) > COORDINATE_LIMIT or not math.isfinite(value):  # a huge int: no float
         raise MapFormatError(field, f"must be finite and within ±{COORDINATE_LIMIT:g} m")
     return float(value)
 

@@ -7,6 +7,7 @@ and still answers JSON.
 
 from __future__ import annotations
 
+import json
 import logging
 from typing import Any
 
@@ -27,8 +28,21 @@ class BodyTooLargeError(StarletteHTTPException):
         super().__init__(413, f"request body larger than {limit} bytes")
 
 
+#: FastAPI's answer to a body that ``json.loads`` cannot read other than as malformed JSON (an
+#: integer too long to convert, nesting deeper than the recursion limit).
+_UNPARSED_BODY = "There was an error parsing the body"
+
+
+class ErrorJSONResponse(JSONResponse):
+    """An error's JSON, every non-ASCII character escaped: a key the client sent, named in a 422,
+    may hold a lone surrogate, which has no UTF-8 form."""
+
+    def render(self, content: Any) -> bytes:
+        return json.dumps(content, separators=(",", ":")).encode("ascii")
+
+
 def error_response(status: int, body: dict[str, Any], headers: dict[str, str] | None = None):
-    return JSONResponse(body, status_code=status, headers=headers)
+    return ErrorJSONResponse(body, status_code=status, headers=headers)
 
 
 async def _api_error(request: Request, exc: Exception) -> JSONResponse:
@@ -45,6 +59,11 @@ async def _request_validation(request: Request, exc: Exception) -> JSONResponse:
 
 async def _http_exception(request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, StarletteHTTPException)
+    if exc.status_code == 400 and exc.detail == _UNPARSED_BODY:
+        # Answered as malformed JSON is: a 422 naming the body.
+        msg = "body is not JSON this service reads (an integer too long, or nesting too deep)"
+        error = {"loc": ("body",), "msg": msg, "type": "json_invalid"}
+        return error_response(422, validation_payload([error]))
     headers = getattr(exc, "headers", None)
     return error_response(exc.status_code, {"detail": exc.detail}, headers)
 

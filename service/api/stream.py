@@ -32,7 +32,7 @@ import time
 from collections.abc import Awaitable, Callable
 from typing import Any
 
-from pydantic import BaseModel, StrictBool, TypeAdapter, ValidationError
+from pydantic import BaseModel, ConfigDict, StrictBool, TypeAdapter, ValidationError
 
 from service.api import recent_checks
 from service.flows import agents, checks, constraints, contours, frames, stateless
@@ -53,7 +53,8 @@ from service.wire.schemas import (
 log = logging.getLogger("frt.stream")
 
 _agent_id = TypeAdapter(AgentId)
-_radius = TypeAdapter(Radius | None)
+#: Strict, as a JSON body's number is: "7" or true is not a radius.
+_radius = TypeAdapter(Radius | None, config=ConfigDict(strict=True))
 _flag = TypeAdapter(StrictBool)
 
 Handler = Callable[[Services, dict[str, Any], float], Awaitable[BaseModel | dict[str, Any]]]
@@ -175,7 +176,18 @@ OPS: dict[str, Handler] = {
 
 
 def _json(value: Any) -> str:
-    return json.dumps(value, separators=(",", ":"), ensure_ascii=False)
+    """Compact JSON, every non-ASCII character escaped: a string the client sent (an id, a key
+    named in an error) may hold a lone surrogate, which has no UTF-8 form to send."""
+    return json.dumps(value, separators=(",", ":"))
+
+
+def _echoable(message_id: Any) -> bool:
+    """Whether an id can be sent back as JSON (NaN and infinities have no JSON form)."""
+    try:
+        json.dumps(message_id, allow_nan=False)
+    except ValueError:
+        return False
+    return True
 
 
 def _error(message_id: Any, status: int, body: dict[str, Any]) -> str:
@@ -196,11 +208,14 @@ async def handle(services: Services, text: str, arrival: float) -> str:
         return _error(None, 413, {"detail": detail})
     try:
         message = json.loads(text)
-    except (json.JSONDecodeError, RecursionError):
+    except (ValueError, RecursionError):  # ValueError: also an integer too long to convert
         return _error(None, 400, {"detail": "message is not valid JSON"})
     if not isinstance(message, dict):
         return _error(None, 400, {"detail": "message must be a JSON object"})
     message_id = message.pop("id", None)
+    if not _echoable(message_id):
+        detail = "id must be JSON without NaN or infinite numbers"
+        return _error(None, 422, {"detail": detail, "field": "id"})
     op = message.pop("op", None)
     handler = OPS.get(op) if isinstance(op, str) else None
     if handler is None:

@@ -196,8 +196,10 @@ def steps_in_horizon(n_steps: int, dt: float, horizon: float = HORIZON_S) -> int
     """How many prediction steps start before T (at least one): the steps the fit uses."""
     if not (math.isfinite(dt) and dt > 0.0 and math.isfinite(horizon) and horizon > 0.0):
         raise ValueError(f"dt and horizon must be positive, got {dt!r}, {horizon!r}")
-    inside = math.ceil(horizon * (1.0 - _TIME_RTOL) / dt)  # k dt < T (1 - rtol) <=> k < inside
-    return max(1, min(n_steps, inside))
+    ratio = horizon * (1.0 - _TIME_RTOL) / dt  # k dt < T (1 - rtol) <=> k < ceil(ratio)
+    if not ratio < n_steps:  # every step (a dt so small that the ratio is infinite too)
+        return max(1, n_steps)
+    return max(1, min(n_steps, math.ceil(ratio)))
 
 
 def _boundary_values(values: np.ndarray, reduce: Any) -> np.ndarray:

@@ -11,6 +11,7 @@ cut ones.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, TypeVar
@@ -30,14 +31,18 @@ from service.wire.schemas import ContourPair, ContourQuery, Contours, ContourSli
 M = TypeVar("M", bound=BaseModel)
 
 
+#: A decimal number as JSON writes one (no ``1_0``, no other scripts' digits), with an optional
+#: sign or leading dot; NaN and infinities are not numbers here.
+_DECIMAL = re.compile(r"\s*[+-]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+)(?:[eE][+-]?[0-9]+)?\s*")
+
+
 def parse_times(slices: str | None) -> list[float]:
     """``slices=1.0,2.0`` as numbers (422 naming ``slices.i``, in the query, if one is not)."""
     times: list[float] = []
     for i, text in enumerate(s for s in (slices or "").split(",") if s.strip()):
-        try:
-            times.append(float(text))
-        except ValueError:
-            raise FieldError(f"slices.{i}", f"not a number: {text!r}", location="query") from None
+        if not _DECIMAL.fullmatch(text):
+            raise FieldError(f"slices.{i}", f"not a number: {text!r}", location="query")
+        times.append(float(text))
     return times
 
 

@@ -44,9 +44,11 @@ def _rejection(index: int, agent_id: str | None, exc: APIError) -> FrameRejectio
     )
 
 
-def _entry_body(raw: dict[str, Any], timestamp: float) -> tuple[str, dict[str, Any]]:
+def _entry_body(raw: Any, timestamp: float) -> tuple[str, dict[str, Any]]:
     """The entry's agent id and its observation's body (the frame's timestamp in it), or a 422
     naming its field (within the entry)."""
+    if not isinstance(raw, dict):
+        raise APIError(422, "an entry must be an object")
     if "agent_id" not in raw:
         raise APIError(422, "agent_id is required", field="agent_id")
     try:
@@ -108,7 +110,8 @@ def _checked(
         try:
             bodies.append((index, *_entry_body(raw, request.timestamp)))
         except APIError as exc:
-            agent_id = raw.get("agent_id") if isinstance(raw.get("agent_id"), str) else None
+            named = raw.get("agent_id") if isinstance(raw, dict) else None
+            agent_id = named if isinstance(named, str) else None
             results[index] = _rejection(index, agent_id, exc)
     try:
         observations: list[ObservationRequest | APIError] = list(

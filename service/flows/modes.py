@@ -73,7 +73,12 @@ def normalised_weights(weights: ArrayLike) -> np.ndarray:
 
 def weight_rows(weights: np.ndarray) -> np.ndarray:
     """Each agent's mode weights [A, M] divided by their sum."""
-    return weights / weights.sum(axis=-1, keepdims=True)
+    with np.errstate(over="ignore"):
+        total = weights.sum(axis=-1, keepdims=True)
+    # Weights near the largest float overflow their sum: such a row is divided by its largest
+    # weight first (any other row by 1.0, which leaves it as it is).
+    scaled = weights / np.where(np.isfinite(total), 1.0, weights.max(axis=-1, keepdims=True))
+    return scaled / scaled.sum(axis=-1, keepdims=True)
 
 
 def joint_normalised(log_probs: np.ndarray) -> np.ndarray:

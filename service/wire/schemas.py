@@ -511,9 +511,11 @@ class FrameRequest(Request):
     and field while the others are applied."""
 
     timestamp: Time
-    agents: list[dict[str, Any]] = Field(
+    agents: list[Any] = Field(
         max_length=AGENTS_PER_FRAME_CAP,
         description="per agent: agent_id and the observation body's fields but timestamp",
+        # Objects; an entry that is not one is rejected on its own (service.flows.frames).
+        json_schema_extra={"items": {"type": "object"}},
     )
 
 

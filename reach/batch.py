@@ -22,7 +22,12 @@ import numba
 import numpy as np
 from shapely.geometry.base import BaseGeometry
 
-from reach.distances import box_union_distances_until, compile_distance_kernels, signed_distances
+from reach.distances import (
+    box_union_distances_until,
+    compile_distance_kernels,
+    signed_distances,
+    union_box_distances_until,
+)
 from reach.frames import human_frames
 from reach.packed_rings import point_columns, signed_distances_packed, trajectory_surrogates
 from reach.sets import BoxTubeSet, FRTSet
@@ -47,6 +52,70 @@ def box_clearances(
         ):
             out[i] = result
     return out  # type: ignore[return-value]
+
+
+def least_member_clearances(
+    groups: Sequence[Sequence[BoxTubeSet]],
+    xy_world: np.ndarray,
+    t_rel: Sequence[np.ndarray | None],
+) -> list[np.ndarray]:
+    """Per group of box sets (one agent's: its set alone, or a union's members), the least of
+    ``[s.clearance(xy_world, t_rel[g]) for s in groups[g]]`` at each point: the same values bit
+    for bit. The sets alone go through :func:`box_clearances` together; a union whose members
+    share their frame and layout of boxes (one engine's sets of one pose do) is measured by
+    ``reach.distances.union_box_distances_until``, which searches all of its members' boxes
+    together; any other union member by member."""
+    xy_world = np.asarray(xy_world, dtype=float).reshape(-1, 2)
+    out: list[np.ndarray | None] = [None] * len(groups)
+    unions: dict[tuple[int, int], list[int]] = {}
+    alone: list[tuple[int, BoxTubeSet]] = []
+    for g, members in enumerate(groups):
+        if len(members) > 1 and _shared_layout(members):
+            unions.setdefault((len(members), len(members[0].boxes)), []).append(g)
+        else:
+            alone += [(g, s) for s in members]
+    measured = box_clearances([s for _, s in alone], xy_world, [t_rel[g] for g, _ in alone])
+    for (g, _), found in zip(alone, measured, strict=True):
+        previous = out[g]
+        out[g] = found if previous is None else np.minimum(previous, found)
+    for same in unions.values():
+        found = _union_pass([groups[g] for g in same], xy_world, [t_rel[g] for g in same])
+        for g, row in zip(same, found, strict=True):
+            out[g] = row
+    return out  # type: ignore[return-value]
+
+
+def _shared_layout(members: Sequence[BoxTubeSet]) -> bool:
+    """Whether box sets share their pose, grid of slices and layout of boxes."""
+    first = members[0]
+    grid = (first.pose, first.slice_dt, first.horizon_s, first.n_slices, first.boxes.shape)
+    return all(
+        (m.pose, m.slice_dt, m.horizon_s, m.n_slices, m.boxes.shape) == grid
+        and (m.boxes_until is first.boxes_until or np.array_equal(m.boxes_until, first.boxes_until))
+        for m in members[1:]
+    )
+
+
+def _union_pass(
+    unions: list[Sequence[BoxTubeSet]], xy_world: np.ndarray, t_rel: list[np.ndarray | None]
+) -> list[np.ndarray]:
+    """:func:`least_member_clearances` of unions with the same numbers of members and boxes,
+    each sharing its members' layout: their boxes as [A, W, K, 4] (window w of member k)."""
+    firsts = [members[0] for members in unions]
+    x, y = human_frames(xy_world, [s.pose for s in firsts])  # [A, N]
+    boxes = np.stack([np.stack([m.boxes for m in members], axis=1) for members in unions])
+    if any(t is not None for t in t_rel):
+        index = _tube_indices(firsts, t_rel, len(xy_world))  # [A, N]
+        until = np.stack([frt.boxes_until[row] for frt, row in zip(firsts, index, strict=True)])
+    else:
+        until = np.full(x.shape, boxes.shape[1])
+    threads = KERNEL_THREADS if x.size * boxes.shape[2] >= THREADED_UNION_PROBES else 1
+    edges = np.linspace(0, x.shape[1], threads + 1).round().astype(int)
+    calls = [
+        partial(union_box_distances_until, x[:, a:b], y[:, a:b], boxes, until[:, a:b])
+        for a, b in itertools.pairwise(edges.tolist())
+    ]
+    return list(np.concatenate(run_on_threads(calls, threads), axis=1))
 
 
 #: Elements of the [A, N, M] arrays one pass of the box kernel holds: a batch of points is measured
@@ -121,6 +190,9 @@ KERNEL_THREADS = min(
 #: Probe-agent pairs below which a batch is measured on the calling thread alone: handing a share
 #: to another thread costs more than it saves.
 THREADED_PROBES = 20_000
+#: Point-member pairs of unions (points of each union times its members) below which unions are
+#: measured on the calling thread alone (:func:`least_member_clearances`).
+THREADED_UNION_PROBES = 64_000
 
 T = TypeVar("T")
 #: Where a job's outcome goes: None, or what it raised.

@@ -86,10 +86,161 @@ def _box_union_until(x, y, boxes, until, out):  # type: ignore[no-untyped-def]
             out[a, n] = least if least <= 0.0 else math.sqrt(nearest)
 
 
+#: Boxes per leaf of the tree :func:`union_box_distances_until` searches.
+LEAF_BOXES = 4
+
+
+def union_box_distances_until(
+    x: np.ndarray, y: np.ndarray, boxes: np.ndarray, until: np.ndarray
+) -> np.ndarray:
+    """The least of :func:`box_union_distances_until` over the members of A unions, each union's
+    members sharing a frame and a layout of boxes: ``x``, ``y`` [A, N], ``boxes`` [A, W, K, 4]
+    (window w of member k), ``until`` [A, N] (windows ``0 .. until - 1`` count for that point).
+    The same values bit for bit: the least depth over the counted boxes if at most 0, else the
+    root of the least squared distance, which is the least member's value either way.
+
+    Each union's W * K boxes are put in a tree of enclosing boxes (leaves of
+    :data:`LEAF_BOXES` boxes in the Z-order of their centres and windows, each node the box
+    around its children and the first window under it), searched from the root per point, the
+    child whose box is deeper first. A node's box bounds each box under it from below, both
+    ``max(dx, dy)`` and the squared distance (floating-point subtraction, products and sums of
+    non-negative values are monotone), so a node whose bounds cannot lower what the boxes
+    measured already have found, or whose boxes all come after the point's windows, is skipped
+    without changing the result."""
+    out = np.empty(x.shape, dtype=np.float64)
+    _union_until(
+        np.ascontiguousarray(x, dtype=np.float64),
+        np.ascontiguousarray(y, dtype=np.float64),
+        np.ascontiguousarray(boxes, dtype=np.float64),
+        np.ascontiguousarray(until, dtype=np.int64),
+        out,
+    )
+    return out
+
+
+@numba.njit(cache=True, inline="always")
+def _box_terms(box, px, py):  # type: ignore[no-untyped-def]
+    """A box's ``max(dx, dy)`` at a point and its squared distance from it."""
+    dx = max(box[0] - px, px - box[1])
+    dy = max(box[2] - py, py - box[3])
+    depth = max(dx, dy)
+    dx, dy = max(dx, 0.0), max(dy, 0.0)
+    return depth, dx * dx + dy * dy
+
+
+@numba.njit(cache=True, inline="always")
+def _spread_bits(v):  # type: ignore[no-untyped-def]
+    """The low 10 bits of ``v`` spread to every third bit (a Z-order code's third)."""
+    v &= 0x3FF
+    v = (v | (v << 16)) & 0x030000FF
+    v = (v | (v << 8)) & 0x0300F00F
+    v = (v | (v << 4)) & 0x030C30C3
+    return (v | (v << 2)) & 0x09249249
+
+
+@numba.njit(cache=True)
+def _z_order(flat, members):  # type: ignore[no-untyped-def]
+    """The boxes ([W * K, 4], box i of window ``i // members``) in the Z-order of their centres
+    and windows on a grid of 1024 steps a side (space on one scale), so that a node of the tree
+    holds boxes near each other in space and in time."""
+    cx = flat[:, 0] + flat[:, 1]
+    cy = flat[:, 2] + flat[:, 3]
+    x0, y0 = cx.min(), cy.min()
+    step = 1023.0 / max(cx.max() - x0, cy.max() - y0, 1e-300)
+    per_window = 1023.0 / max(len(flat) // members - 1, 1)
+    codes = np.empty(len(flat), dtype=np.int64)
+    for i in range(len(flat)):
+        qx = np.int64(min(max((cx[i] - x0) * step, 0.0), 1023.0))
+        qy = np.int64(min(max((cy[i] - y0) * step, 0.0), 1023.0))
+        qt = np.int64(min((i // members) * per_window, 1023.0))
+        codes[i] = _spread_bits(qx) | (_spread_bits(qy) << 1) | (_spread_bits(qt) << 2)
+    return np.argsort(codes)
+
+
+@numba.njit(cache=True)
+def _box_tree(flat, members):  # type: ignore[no-untyped-def]
+    """The tree of :func:`union_box_distances_until` over ``flat`` [W * K, 4] (box i is window
+    ``i // members``): the boxes' order, and per node (a heap: node j's children are 2j + 1 and
+    2j + 2; the last ``leaves`` nodes are the leaves) its box and its first window. Padding
+    leaves hold no box: an empty box after every window."""
+    order = _z_order(flat, members)
+    leaves = 1
+    while leaves * LEAF_BOXES < len(flat):
+        leaves *= 2
+    box = np.empty((2 * leaves - 1, 4))
+    first = np.empty(2 * leaves - 1, dtype=np.int64)
+    for node in range(leaves - 1, 2 * leaves - 1):
+        box[node, 0], box[node, 1], box[node, 2], box[node, 3] = np.inf, -np.inf, np.inf, -np.inf
+        first[node] = np.iinfo(np.int64).max
+        start = (node - leaves + 1) * LEAF_BOXES
+        for i in range(start, min(start + LEAF_BOXES, len(flat))):
+            _enclose(box[node], flat[order[i]])
+            first[node] = min(first[node], order[i] // members)
+    for node in range(leaves - 2, -1, -1):
+        box[node, :] = box[2 * node + 1, :]
+        _enclose(box[node], box[2 * node + 2])
+        first[node] = min(first[2 * node + 1], first[2 * node + 2])
+    return order, box, first, leaves
+
+
+@numba.njit(cache=True, inline="always")
+def _enclose(outer, inner):  # type: ignore[no-untyped-def]
+    """Grow the box ``outer`` to hold ``inner``, in place."""
+    outer[0] = min(outer[0], inner[0])
+    outer[1] = max(outer[1], inner[1])
+    outer[2] = min(outer[2], inner[2])
+    outer[3] = max(outer[3], inner[3])
+
+
+@numba.njit(cache=True)
+def _tree_distance(px, py, limit, flat, members, tree, stack):  # type: ignore[no-untyped-def]
+    """One point's value of :func:`union_box_distances_until`, the boxes of windows before
+    ``limit`` counted, searched in ``tree`` (:func:`_box_tree`) with ``stack`` for the nodes."""
+    order, box, first, leaves = tree
+    least, nearest = np.inf, np.inf
+    top, stack[0] = 0, 0
+    while top >= 0:
+        node = stack[top]
+        top -= 1
+        depth, near = _box_terms(box[node], px, py)
+        if first[node] >= limit or (depth >= least and (least <= 0.0 or near >= nearest)):
+            continue
+        if node >= leaves - 1:
+            start = (node - leaves + 1) * LEAF_BOXES
+            for i in range(start, min(start + LEAF_BOXES, len(flat))):
+                if order[i] // members < limit:
+                    depth, near = _box_terms(flat[order[i]], px, py)
+                    least, nearest = min(least, depth), min(nearest, near)
+            continue
+        left = 2 * node + 1
+        deeper = _box_terms(box[left], px, py)[0] <= _box_terms(box[left + 1], px, py)[0]
+        stack[top + 1], stack[top + 2] = (left + 1, left) if deeper else (left, left + 1)
+        top += 2
+    return least if least <= 0.0 else math.sqrt(nearest)
+
+
+@numba.njit(cache=True, nogil=True)
+def _union_until(x, y, boxes, until, out):  # type: ignore[no-untyped-def]
+    """:func:`union_box_distances_until`: each union's tree built once, searched per point."""
+    windows, members = boxes.shape[1], boxes.shape[2]
+    for a in range(x.shape[0]):
+        if windows * members == 0:
+            out[a, :] = np.inf
+            continue
+        flat = boxes[a].reshape(windows * members, 4)
+        tree = _box_tree(flat, members)
+        stack = np.empty(2 * (int(np.log2(tree[3])) + 2), dtype=np.int64)
+        for n in range(x.shape[1]):
+            out[a, n] = _tree_distance(x[a, n], y[a, n], until[a, n], flat, members, tree, stack)
+
+
 def compile_distance_kernels() -> None:
-    """Compile (or load from numba's cache) this module's kernel before a check needs it."""
+    """Compile (or load from numba's cache) this module's kernels before a check needs them."""
     box_union_distances_until(
         np.zeros((1, 1)), np.zeros((1, 1)), np.zeros((1, 1, 4)), np.ones((1, 1), np.int64)
+    )
+    union_box_distances_until(
+        np.zeros((1, 1)), np.zeros((1, 1)), np.zeros((1, 1, 1, 4)), np.ones((1, 1), np.int64)
     )
 
 

@@ -41,8 +41,11 @@ RECORD_EVERY = 3
 #: (a car at 20 m/s turning and accelerating at its limits), plus the speed's minimum taken on the
 #: steps (under 0.1 mm of position), with a margin.
 POSITION_ERROR_M = 0.02
-#: Rollouts' positions kept for the latest settings (each ~16 kB a row of bounds).
-CACHED_SETTINGS = 256
+#: Rows of bounds whose rollouts' positions are kept (each ~16 kB): the latest 32-mode settings
+#: of 32 agents.
+CACHED_ROWS = 1024
+#: Recorded positions per segment of a rollout that :func:`first_witnessed` bounds by a box.
+SEGMENT = 8
 
 
 @dataclass(frozen=True)
@@ -55,17 +58,21 @@ class Witnesses:
 
 def witnesses(v_start: float, bounds: np.ndarray, horizon: float = HORIZON_S) -> Witnesses:
     """The rollouts of each row of ``bounds`` ([8] or [M, 8], contract order) from speed
-    ``v_start``, kept for the latest :data:`CACHED_SETTINGS` settings."""
+    ``v_start``, each row's kept for the latest :data:`CACHED_ROWS` rows."""
     rows = np.ascontiguousarray(bounds, dtype=np.float64).reshape(-1, 8)
-    return _cached(float(v_start), rows.tobytes(), float(horizon))
+    found = [_cached(float(v_start), row.tobytes(), float(horizon)) for row in rows]
+    if len(found) == 1:
+        return found[0]
+    xy = np.concatenate([w.xy for w in found])
+    xy.flags.writeable = False
+    return Witnesses(found[0].times, xy)
 
 
-@lru_cache(maxsize=CACHED_SETTINGS)
-def _cached(v_start: float, rows: bytes, horizon: float) -> Witnesses:
-    bounds = np.frombuffer(rows, dtype=np.float64).reshape(-1, 8)
+@lru_cache(maxsize=CACHED_ROWS)
+def _cached(v_start: float, row: bytes, horizon: float) -> Witnesses:
+    bounds = np.frombuffer(row, dtype=np.float64)
     times = np.linspace(0.0, horizon, round(horizon / STEP_S) + 1)
-    xy = np.concatenate([_rollouts(v_start, row, times) for row in bounds])
-    recorded = xy[:, ::RECORD_EVERY]
+    recorded = _rollouts(v_start, bounds, times)[:, ::RECORD_EVERY]
     recorded.flags.writeable = False
     return Witnesses(times[::RECORD_EVERY].copy(), recorded)
 
@@ -113,10 +120,82 @@ def witnessed(
     return out
 
 
+def first_witnessed(
+    found: Witnesses, xy_human: np.ndarray, until: np.ndarray | None, radius: float
+) -> int:
+    """The first point (human frame, [P, 2]) that :func:`witnessed` holds witnessed, -1 if none:
+    the same test, stopped at the first point it holds. Each rollout's positions are bounded by a
+    box, and each :data:`SEGMENT` of them by one; a rollout or a segment whose box lies at least
+    the reach from a point (the squared distance to the box is at most any of its positions':
+    floating-point subtraction and sums of squares are monotone) holds no witness of it and is
+    not searched."""
+    xy = np.ascontiguousarray(xy_human, dtype=np.float64).reshape(-1, 2)
+    limit = np.full(len(xy), np.inf) if until is None else np.asarray(until, dtype=np.float64)
+    reach = radius - POSITION_ERROR_M
+    if reach <= 0.0 or not len(xy):
+        return -1
+    return int(
+        _first_witnessed(found.times, found.xy, xy, np.ascontiguousarray(limit), reach * reach)
+    )
+
+
 def compile_witness_kernel() -> None:
-    """Compile (or load from numba's cache) the kernel before a check needs it."""
-    found = Witnesses(np.zeros(2), np.zeros((1, 2, 2)))
+    """Compile (or load from numba's cache) the kernels before a check needs them, for
+    positions as :func:`witnesses` keeps them (read-only)."""
+    xy = np.zeros((1, 2, 2))
+    xy.flags.writeable = False
+    found = Witnesses(np.zeros(2), xy)
     witnessed(found, np.zeros((1, 2)), None, 1.0)
+    first_witnessed(found, np.zeros((1, 2)), None, 1.0)
+
+
+@numba.njit(cache=True, nogil=True)
+def _segment_boxes(xy):  # type: ignore[no-untyped-def]
+    """Per rollout, the box of its positions (``[K, 0]``) and of each segment of
+    :data:`SEGMENT` of them (``[K, 1 + g]``), as (x_lo, x_hi, y_lo, y_hi)."""
+    rollouts, n = xy.shape[0], xy.shape[1]
+    boxes = np.empty((rollouts, 1 + (n + SEGMENT - 1) // SEGMENT, 4))
+    for k in range(rollouts):
+        for g in range(boxes.shape[1]):
+            start, end = (0, n) if g == 0 else ((g - 1) * SEGMENT, min(g * SEGMENT, n))
+            boxes[k, g, 0] = xy[k, start:end, 0].min()
+            boxes[k, g, 1] = xy[k, start:end, 0].max()
+            boxes[k, g, 2] = xy[k, start:end, 1].min()
+            boxes[k, g, 3] = xy[k, start:end, 1].max()
+    return boxes
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _box_distance2(box, px, py):  # type: ignore[no-untyped-def]
+    """The squared distance from a point to a box (0 inside)."""
+    bx = max(box[0] - px, px - box[1], 0.0)
+    by = max(box[2] - py, py - box[3], 0.0)
+    return bx * bx + by * by
+
+
+@numba.njit(cache=True, nogil=True)
+def _first_witnessed(times, xy, points, until, reach2):  # type: ignore[no-untyped-def]
+    """:func:`first_witnessed`: per point, rollout and segment, the boxes first."""
+    boxes = _segment_boxes(xy)
+    for p in range(len(points)):
+        px, py = points[p, 0], points[p, 1]
+        for k in range(xy.shape[0]):
+            if _box_distance2(boxes[k, 0], px, py) >= reach2:
+                continue
+            for g in range(1, boxes.shape[1]):
+                start = (g - 1) * SEGMENT
+                if times[start] > until[p]:
+                    break
+                if _box_distance2(boxes[k, g], px, py) >= reach2:
+                    continue
+                for n in range(start, min(start + SEGMENT, len(times))):
+                    if times[n] > until[p]:
+                        break
+                    dx = px - xy[k, n, 0]
+                    dy = py - xy[k, n, 1]
+                    if dx * dx + dy * dy < reach2:
+                        return p
+    return -1
 
 
 @numba.njit(cache=True, nogil=True)

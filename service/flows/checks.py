@@ -30,7 +30,7 @@ from pydantic import TypeAdapter
 
 from reach.batch import (
     Reduction,
-    box_clearances,
+    least_member_clearances,
     trajectory_surrogates_of,
     tube_clearances,
     tubes_of_many,
@@ -63,6 +63,9 @@ log = logging.getLogger("frt.checks")
 
 #: Clearances are clipped to +-this (metres) so that "no set at all" (infinite distance) stays JSON.
 CLEARANCE_LIMIT = 1e9
+#: Share of the time the deadline leaves while answering that the optional witness search may
+#: take: the rest absorbs what the estimates of answering miss, such as writing the reply.
+WITNESS_SHARE = 0.5
 
 
 def answer(
@@ -130,6 +133,9 @@ class _Timeline:
     done: float = 0.0
     #: Seconds spent cutting sets to the road while answering (not answering's own cost).
     cut_s: float = 0.0
+    #: Seconds spent searching for witnessed collisions (optional: within what the deadline
+    #: leaves, not answering's own cost).
+    witness_s: float = 0.0
 
     def phases_ms(self) -> dict[str, float]:
         """Where the time went: before this module ran (parsing, the event loop busy with other
@@ -196,7 +202,8 @@ async def answer_states(
     results = _respond_all(services, states, exact, request, points, radii, distances, road)
     _count_reasons(services, not_ready=not_ready, no_time=no_time, tubes=len(coarse))
     timeline.done = time.perf_counter()
-    costs.response.record(timeline.done - timeline.sets_done - timeline.cut_s, len(states))
+    answering = timeline.done - timeline.sets_done - timeline.cut_s - timeline.witness_s
+    costs.response.record(answering, len(states))
     if no_time and not any(frt is not None for frt in exact):
         skipped = next(i for i, frt in enumerate(found) if frt is not None)
         asyncio.get_running_loop().call_soon(
@@ -250,11 +257,7 @@ def _road_assumptions(
     that is not is farther from the uncut set, and so from the cut one, than the margin.
     The time it takes goes into ``road.timeline.cut_s``."""
     start = time.perf_counter()
-    until = (
-        road.timeline.arrival
-        + (road.deadline_ms - services.settings.deadline_reserve_ms) / 1000.0
-        - road.costs.response.upper_s(len(states))
-    )
+    until = _answer_until(services, road, len(states))
     labels = cut_near(
         services,
         states,
@@ -267,6 +270,16 @@ def _road_assumptions(
     )
     road.timeline.cut_s = time.perf_counter() - start
     return labels
+
+
+def _answer_until(services: Services, road: _RoadCut, agents: int) -> float:
+    """When (``time.perf_counter()``) optional work while answering must stop: the deadline's
+    reserve less what answering ``agents`` agents rarely exceeds."""
+    return (
+        road.timeline.arrival
+        + (road.deadline_ms - services.settings.deadline_reserve_ms) / 1000.0
+        - road.costs.response.upper_s(agents)
+    )
 
 
 def _note_deadline(
@@ -326,13 +339,12 @@ def _conservative_distances(
     t_rel: list[np.ndarray | None],
 ) -> tuple[dict[int, FRTSet], dict[int, np.ndarray]]:
     """The set each agent is answered from (its exact set, else its conservative one), and the
-    clearances of the agents answered from box sets, all in one numpy pass."""
+    clearances of the agents answered from box sets, measured together
+    (``reach.batch.least_member_clearances``: a union's, its members' least)."""
     conservative = {i: services.conservative(jobs[i]) for i, frt in enumerate(exact) if frt is None}
-    members = [(i, box) for i, frt in conservative.items() for box in box_members(frt)]
-    measured = box_clearances([box for _, box in members], xy, [t_rel[i] for i, _ in members])
-    distances: dict[int, np.ndarray] = {}
-    for (i, _), found in zip(members, measured, strict=True):  # a union's: its members' least
-        distances[i] = found if i not in distances else np.minimum(distances[i], found)
+    members = {i: m for i, frt in conservative.items() if (m := box_members(frt))}
+    measured = least_member_clearances(list(members.values()), xy, [t_rel[i] for i in members])
+    distances = dict(zip(members, measured, strict=True))
     chosen = {i: frt if frt is not None else conservative[i] for i, frt in enumerate(exact)}
     return chosen, distances
 
@@ -577,7 +589,7 @@ def _respond_all(
         batches: list[Any] | None = answers.answers
         batch_field = answers.field
         rows: list[list[float]] = [[] for _ in states]
-        first = np.full(len(states), -1)
+        clearance, first = np.empty((len(states), 0)), np.full(len(states), -1)
         colliding, least = answers.colliding, answers.least
     else:
         clearance, first = clearance_rows(points.point_distances(np.stack(probed)), radii)
@@ -586,7 +598,7 @@ def _respond_all(
         batch_field = ""
     times, horizon = points.times, services.horizon_s()
     _count_sources(services, exact, coarse)
-    answered = (exact, coarse, labels, colliding)
+    answered = (exact, coarse, labels, colliding, clearance)
     witnessed = _witnessed(services, states, answered, request, points, radii, road)
     betas = stored_estimates([state.belief for state in states])
     fields = []
@@ -636,7 +648,7 @@ _ANSWERS = TypeAdapter(list[CollisionCheckResponse])
 def _witnessed(
     services: Services,
     states: Sequence[AgentState],
-    answered: tuple[Sequence[FRTSet | None], set[int], list[list[str]], list[bool]],
+    answered: tuple[Sequence[FRTSet | None], set[int], list[list[str]], list[bool], np.ndarray],
     request: CollisionCheckRequest,
     points: CheckPoints,
     radii: np.ndarray,
@@ -644,15 +656,24 @@ def _witnessed(
 ) -> set[int]:
     """The agents whose conservative collision a reached position witnesses
     (``service.flows.witnessed``), of ``answered`` = (exact sets, agents answered with later
-    tubes, map assumptions, collisions); counted in ``frt_collisions_witnessed``."""
-    exact, coarse, labels, colliding = answered
+    tubes, map assumptions, collisions, clearances [A, N] of a single trajectory's points),
+    searched for :data:`WITNESS_SHARE` of the time the deadline leaves to answer them all (the
+    time it takes goes into ``road.timeline.witness_s``); counted in
+    ``frt_collisions_witnessed``."""
+    exact, coarse, labels, colliding, clearance = answered
     candidates = [
         i
         for i in range(len(states))
         if (exact[i] is None or i in coarse) and colliding[i] and not labels[i]
     ]
+    if not candidates:
+        return set()
     engine = services.require_engine()
-    found = witnessed_collisions(engine, states, road.jobs, request, points, radii, candidates)
+    start = time.perf_counter()
+    until = start + WITNESS_SHARE * (_answer_until(services, road, len(states)) - start)
+    answered_as = (radii, clearance, candidates)
+    found = witnessed_collisions(engine, states, road.jobs, request, points, answered_as, until)
+    road.timeline.witness_s = time.perf_counter() - start
     if found:
         services.metrics.collisions_witnessed.inc(len(found))
     return found

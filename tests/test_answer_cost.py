@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 from fastapi.testclient import TestClient
 
-from service.runtime.answer_cost import SPREAD, AnswerCosts, CostEstimate
+from service.runtime.answer_cost import SPREAD, AnswerCosts, CostEstimate, work_units
 from service.runtime.settings import Settings
 from tests.fixtures.payloads import observation
 from tests.test_api_errors import client_for
@@ -41,20 +41,36 @@ def _costs(exact_s: float, conservative_s: float, response_s: float) -> AnswerCo
 
 def test_as_many_exact_answers_as_fit() -> None:
     costs = _costs(exact_s=1e-3, conservative_s=0.1e-3, response_s=0.05e-3)
-    # 50 agents, 40 with exact sets: all conservative costs 7.5 ms, each exact one 0.9 ms more.
-    assert math.isclose(costs.upper_s(0, 50), 7.5e-3)
+    # 50 agents of one unit, 40 with exact sets: all conservative costs 7.5 ms, each exact one
+    # 0.9 ms more.
+    ones = [1.0] * 40
+    assert math.isclose(costs.upper_s(0, 50, 50), 7.5e-3)
     for seconds in (0.0, 7.0e-3, 7.5e-3 + 0.89e-3, 7.5e-3 + 0.91e-3, 0.02, 1.0):
-        k = costs.exact_agents_within(seconds, 40, 50)
+        k = costs.exact_agents_within(seconds, ones, 50, 50)
         assert 0 <= k <= 40
-        assert k == 0 or costs.upper_s(k, 50 - k) <= seconds + 1e-12
-        assert k == 40 or costs.upper_s(k + 1, 49 - k) > seconds
-    assert costs.exact_agents_within(1.0, 40, 50) == 40
-    assert costs.exact_agents_within(7.0e-3, 40, 50) == 0
+        assert k == 0 or costs.upper_s(k, 50 - k, 50) <= seconds + 1e-12
+        assert k == 40 or costs.upper_s(k + 1, 49 - k, 50) > seconds
+    assert costs.exact_agents_within(1.0, ones, 50, 50) == 40
+    assert costs.exact_agents_within(7.0e-3, ones, 50, 50) == 0
     cheaper = _costs(exact_s=0.1e-3, conservative_s=0.2e-3, response_s=0.0)
-    assert cheaper.exact_agents_within(0.011, 40, 50) == 40
+    assert cheaper.exact_agents_within(0.011, ones, 50, 50) == 40
     # Past the deadline's reserve either way: conservative answers would take longer still.
-    assert cheaper.exact_agents_within(0.005, 40, 50) == 40
-    assert cheaper.exact_agents_within(0.0, 40, 50) == 40
+    assert cheaper.exact_agents_within(0.005, ones, 50, 50) == 40
+    assert cheaper.exact_agents_within(0.0, ones, 50, 50) == 40
+
+
+def test_heavy_agents_count_by_their_work() -> None:
+    """An agent of many modes checked at many probes weighs its members times its probes: the
+    exact answers that fit stop before it, though lighter agents after it would fit."""
+    assert work_units(20) == 1.0
+    assert work_units(1000, members=32) == 32 * 1020 / 40
+    costs = _costs(exact_s=1e-3, conservative_s=0.1e-3, response_s=0.0)
+    heavy = work_units(1000, members=32)
+    units = [1.0, 1.0, heavy, 1.0]
+    total = sum(units)
+    seconds = total * 0.1e-3 + 3 * 0.9e-3 + 1e-6  # room for three light exact answers
+    assert costs.exact_agents_within(seconds, units, total, 4.0) == 2
+    assert costs.exact_agents_within(seconds + heavy * 0.9e-3, units, total, 4.0) == 4
 
 
 @pytest.fixture(scope="module")

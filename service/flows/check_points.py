@@ -42,6 +42,11 @@ class CheckPoints:
         return len(self.times)
 
     @property
+    def n_probes(self) -> int:
+        """Where distances are measured: the points, or their footprints' discs."""
+        return self.n_points * (1 if self.cover is None else self.cover.count)
+
+    @property
     def probe_xy(self) -> np.ndarray:
         """Where distances to the sets are measured: ``[points * discs, 2]``."""
         if self.cover is None:
@@ -324,9 +329,7 @@ def _entries(
 
 def check_work(points: CheckPoints, agents: int, limits: RequestLimits) -> None:
     """422 if measuring ``points`` against ``agents`` agents exceeds what one check may do."""
-    probes = (
-        len(points.probe_times) if points.cover is None else points.n_points * points.cover.count
-    )
+    probes = points.n_probes
     if probes * agents > limits.max_check_work:
         raise FieldError(
             points.field,

@@ -21,7 +21,7 @@ import asyncio
 import logging
 import time
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -35,6 +35,7 @@ from reach.batch import (
     tube_clearances,
     tubes_of_many,
 )
+from reach.contract import BOUND_COLUMNS
 from reach.sets import FRTSet
 from reach.union import box_members
 from service.flows.agent_config import AgentConfig
@@ -42,7 +43,7 @@ from service.flows.check_points import CheckPoints, batch_answers, check_points,
 from service.flows.confidence import stored_estimates
 from service.flows.road import cut_near
 from service.flows.witnessed import witnessed_collisions
-from service.runtime.answer_cost import AnswerCosts
+from service.runtime.answer_cost import AnswerCosts, work_units
 from service.runtime.jobs import FRTJob
 from service.runtime.services import Services
 from service.runtime.settings import Settings
@@ -169,10 +170,11 @@ async def answer_states(
     deadline_ms = request.deadline_ms or services.settings.deadline_ms
     costs = services.answer_costs_for(points.batch)
     jobs = [services.job_for(state) for state in states]
-    exact = await _exact_sets_in_time(services, costs, jobs, (arrival, deadline_ms))
+    work = _Work.of_check(points, jobs)
+    exact = await _exact_sets_in_time(services, (costs, work), jobs, (arrival, deadline_ms))
     not_ready = sum(frt is None for frt in exact)
     found = list(exact)
-    no_time = _answer_in_time(services, costs, exact, (arrival, deadline_ms))
+    no_time = _answer_in_time(services, (costs, work), exact, (arrival, deadline_ms))
     xy, times = points.probe_xy, points.probe_times
     t_rel = _times_after(times, states) if request.mode == "time_indexed" else [None] * len(states)
     radii = _collision_radii(services.settings, states, request)
@@ -182,7 +184,7 @@ async def answer_states(
     timeline.waited = time.perf_counter()
     chosen, distances = _conservative_distances(services, jobs, exact, xy, t_rel)
     timeline.boxes_done = time.perf_counter()
-    costs.conservative.record(timeline.boxes_done - timeline.waited, len(distances))
+    costs.conservative.record(timeline.boxes_done - timeline.waited, work.of(distances))
     _note_tube_demand(services, states, chosen, t_rel)
     pending = [i for i in chosen if i not in distances]
     drawn_before = services.tubes.spent_s
@@ -192,28 +194,41 @@ async def answer_states(
         pending,
         distances,
         (xy, t_rel, reduction),
-        (costs, arrival, deadline_ms, len(states)),
+        (costs, arrival, deadline_ms, work),
     )
     timeline.sets_done = time.perf_counter()
     # Tubes drawn for this check are budgeted on their own (TubeBuilder.cost).
     drawing = services.tubes.spent_s - drawn_before
-    costs.exact.record(timeline.sets_done - timeline.boxes_done - drawing, len(pending))
-    road = _RoadCut(jobs, chosen, coarse, t_rel, timeline, deadline_ms, costs)
+    costs.exact.record(timeline.sets_done - timeline.boxes_done - drawing, work.of(pending))
+    road = _RoadCut(jobs, chosen, coarse, t_rel, timeline, deadline_ms, costs, work.answering)
     results = _respond_all(services, states, exact, request, points, radii, distances, road)
     _count_reasons(services, not_ready=not_ready, no_time=no_time, tubes=len(coarse))
     timeline.done = time.perf_counter()
     answering = timeline.done - timeline.sets_done - timeline.cut_s - timeline.witness_s
-    costs.response.record(answering, len(states))
+    costs.response.record(answering, work.answering)
     if no_time and not any(frt is not None for frt in exact):
-        skipped = next(i for i, frt in enumerate(found) if frt is not None)
-        asyncio.get_running_loop().call_soon(
-            _measure_exact_answer,
-            costs,
-            found[skipped],
-            (xy, t_rel[skipped], _for_agent(reduction, skipped)),
-        )
+        _measure_one_skipped(found, (costs, work), (xy, t_rel, reduction))
     _note_deadline(services, timeline, deadline_ms, len(states), not_ready, no_time)
     return results
+
+
+def _measure_one_skipped(
+    found: list[FRTSet | None],
+    costed: tuple[AnswerCosts, _Work],
+    probes: tuple[np.ndarray, list[np.ndarray | None], Reduction | None],
+) -> None:
+    """After a check that answered every agent conservatively for want of time, measure what
+    answering the first exact set it ``found`` would have cost (:func:`_measure_exact_answer`),
+    once the loop is free."""
+    costs, work = costed
+    xy, t_rel, reduction = probes
+    skipped = next(i for i, frt in enumerate(found) if frt is not None)
+    asyncio.get_running_loop().call_soon(
+        _measure_exact_answer,
+        (costs, float(work.measuring[skipped])),
+        found[skipped],
+        (xy, t_rel[skipped], _for_agent(reduction, skipped)),
+    )
 
 
 def _times_after(times: np.ndarray, states: Sequence[AgentState]) -> list[np.ndarray]:
@@ -225,6 +240,26 @@ def _times_after(times: np.ndarray, states: Sequence[AgentState]) -> list[np.nda
         if state.timestamp not in after:
             after[state.timestamp] = times - state.timestamp
     return [after[state.timestamp] for state in states]
+
+
+@dataclass(frozen=True)
+class _Work:
+    """A check's work in units (``service.runtime.answer_cost.work_units``): per agent, measuring
+    its set's members at the check's probes; answering every agent."""
+
+    measuring: np.ndarray  # [A]
+    answering: float
+
+    @classmethod
+    def of_check(cls, points: CheckPoints, jobs: Sequence[FRTJob]) -> _Work:
+        probes = points.n_probes
+        members = [job.bounds.size // len(BOUND_COLUMNS) for job in jobs]
+        measuring = np.array([work_units(probes, m) for m in members], dtype=np.float64)
+        return cls(measuring, len(jobs) * work_units(points.n_points))
+
+    def of(self, agents: Iterable[int]) -> float:
+        """Units of measuring ``agents`` (indices)."""
+        return float(sum(self.measuring[i] for i in agents))
 
 
 @dataclass(frozen=True)
@@ -240,6 +275,8 @@ class _RoadCut:
     timeline: _Timeline
     deadline_ms: float
     costs: AnswerCosts
+    #: Units of answering every agent of the check (``_Work.answering``).
+    answering: float
 
 
 def _road_assumptions(
@@ -257,7 +294,7 @@ def _road_assumptions(
     that is not is farther from the uncut set, and so from the cut one, than the margin.
     The time it takes goes into ``road.timeline.cut_s``."""
     start = time.perf_counter()
-    until = _answer_until(services, road, len(states))
+    until = _answer_until(services, road)
     labels = cut_near(
         services,
         states,
@@ -272,13 +309,13 @@ def _road_assumptions(
     return labels
 
 
-def _answer_until(services: Services, road: _RoadCut, agents: int) -> float:
+def _answer_until(services: Services, road: _RoadCut) -> float:
     """When (``time.perf_counter()``) optional work while answering must stop: the deadline's
-    reserve less what answering ``agents`` agents rarely exceeds."""
+    reserve less what answering the check's agents rarely exceeds."""
     return (
         road.timeline.arrival
         + (road.deadline_ms - services.settings.deadline_reserve_ms) / 1000.0
-        - road.costs.response.upper_s(agents)
+        - road.costs.response.upper_s(road.answering)
     )
 
 
@@ -309,14 +346,18 @@ def _note_deadline(
 
 
 async def _exact_sets_in_time(
-    services: Services, costs: AnswerCosts, jobs: list[FRTJob], deadline: tuple[float, float]
+    services: Services,
+    costed: tuple[AnswerCosts, _Work],
+    jobs: list[FRTJob],
+    deadline: tuple[float, float],
 ) -> list[FRTSet | None]:
     """Each job's exact set if it is cached or lands within the wait budget, else None. The
     budget keeps time to answer every agent once the wait is over: a planner's check of 50 agents
     takes milliseconds to answer, which a wait up to half the deadline would push past it."""
     arrival, deadline_ms = deadline
     budget = wait_budget_s(arrival, deadline_ms, services.settings)
-    budget -= costs.upper_s(len(jobs), 0)
+    costs, work = costed
+    budget -= costs.upper_s(work.of(range(len(jobs))), 0, work.answering)
     # Cached sets first, without a task each (a planner's check of 50 agents mostly finds them).
     exact = services.cached_exact(jobs)
     late = [i for i, frt in enumerate(exact) if frt is None]
@@ -355,16 +396,16 @@ def _exact_distances(
     pending: list[int],
     distances: dict[int, np.ndarray],
     probes: tuple[np.ndarray, list[np.ndarray | None], Reduction | None],
-    check: tuple[AnswerCosts, float, float, int],
+    check: tuple[AnswerCosts, float, float, _Work],
 ) -> set[int]:
     """Clearances of the ``pending`` agents into ``distances``: the sets that measure against
     their tubes (``FRTSet.clearance``) together, in one vectorised call, any other kind alone.
     ``probes`` is (points, their times after each agent's observation, the batch's reduction);
-    with a reduction, the tube sets' values are its surrogates. ``check`` is (arrival,
-    deadline_ms, number of agents) with the answer costs of its kind. Returns the agents answered against tubes already drawn that
-    end later than theirs (conservatively)."""
+    with a reduction, the tube sets' values are its surrogates. ``check`` is the answer costs
+    of its kind, its arrival, its deadline_ms and its work. Returns the agents answered against
+    tubes already drawn that end later than theirs (conservatively)."""
     xy, t_rel, reduction = probes
-    costs, arrival, deadline_ms, n_agents = check
+    costs, arrival, deadline_ms, work = check
     plain = [i for i in pending if chosen[i].clearance_from_tubes]
     plain_times = {i: t_rel[i] for i in plain}
     # Each time-indexed agent's tubes and its points' places among them, found once (once a
@@ -378,7 +419,7 @@ def _exact_distances(
         {i: chosen[i] for i in plain},
         plain_times,
         (arrival, deadline_ms),
-        costs.exact.upper_s(len(pending)) + costs.response.upper_s(n_agents),
+        costs.exact.upper_s(work.of(pending)) + costs.response.upper_s(work.answering),
         places,
     )
     sets, times = [chosen[i] for i in plain], [plain_times[i] for i in plain]
@@ -426,7 +467,7 @@ def _note_tube_demand(
 
 def _answer_in_time(
     services: Services,
-    costs: AnswerCosts,
+    costed: tuple[AnswerCosts, _Work],
     exact: list[FRTSet | None],
     deadline: tuple[float, float],
 ) -> int:
@@ -443,14 +484,16 @@ def _answer_in_time(
         - (time.perf_counter() - arrival)
         - services.settings.deadline_reserve_ms / 1000.0
     )
-    keep = costs.exact_agents_within(left, len(found), len(exact))
+    costs, work = costed
+    exact_units = [float(work.measuring[i]) for i in found]
+    keep = costs.exact_agents_within(left, exact_units, work.of(range(len(exact))), work.answering)
     for i in found[keep:]:
         exact[i] = None
     return len(found) - keep
 
 
 def _measure_exact_answer(
-    costs: AnswerCosts,
+    costed: tuple[AnswerCosts, float],
     frt: FRTSet,
     probes: tuple[np.ndarray, np.ndarray | None, Reduction | None],
 ) -> None:
@@ -458,8 +501,10 @@ def _measure_exact_answer(
     out for want of time) would have cost, if its tubes are drawn: a check that answers every agent
     conservatively records no exact cost, so an estimate once too high (a first, cold answer; a
     pause under load) would otherwise never come down, and every later check with a short
-    deadline would answer conservatively too. ``probes``: the check's points, their times after
-    the agent's observation and the batch's reduction (for this agent alone)."""
+    deadline would answer conservatively too. ``costed``: the costs and the agent's units of
+    work; ``probes``: the check's points, their times after the agent's observation and the
+    batch's reduction (for this agent alone)."""
+    costs, units = costed
     xy, t_rel, reduction = probes
     if not frt.clearance_from_tubes:
         return
@@ -470,7 +515,7 @@ def _measure_exact_answer(
         tube_clearances([frt], xy, [t_rel])
     else:
         trajectory_surrogates_of([frt], xy, [t_rel], reduction)
-    costs.exact.record(time.perf_counter() - start, 1)
+    costs.exact.record(time.perf_counter() - start, units)
 
 
 def _fit_tubes_to_deadline(
@@ -670,7 +715,7 @@ def _witnessed(
         return set()
     engine = services.require_engine()
     start = time.perf_counter()
-    until = start + WITNESS_SHARE * (_answer_until(services, road, len(states)) - start)
+    until = start + WITNESS_SHARE * (_answer_until(services, road) - start)
     answered_as = (radii, clearance, candidates)
     found = witnessed_collisions(engine, states, road.jobs, request, points, answered_as, until)
     road.timeline.witness_s = time.perf_counter() - start

@@ -61,16 +61,17 @@ def least_member_clearances(
 ) -> list[np.ndarray]:
     """Per group of box sets (one agent's: its set alone, or a union's members), the least of
     ``[s.clearance(xy_world, t_rel[g]) for s in groups[g]]`` at each point: the same values bit
-    for bit. The sets alone go through :func:`box_clearances` together; a union whose members
-    share their frame and layout of boxes (one engine's sets of one pose do) is measured by
+    for bit. The sets alone go through :func:`box_clearances` together; a union of at least
+    :data:`TREE_UNION_PROBES` point-member pairs whose members share their frame and layout of
+    boxes (one engine's sets of one pose do) is measured by
     ``reach.distances.union_box_distances_until``, which searches all of its members' boxes
-    together; any other union member by member."""
+    together; any other union member by member with them."""
     xy_world = np.asarray(xy_world, dtype=float).reshape(-1, 2)
     out: list[np.ndarray | None] = [None] * len(groups)
     unions: dict[tuple[int, int], list[int]] = {}
     alone: list[tuple[int, BoxTubeSet]] = []
     for g, members in enumerate(groups):
-        if len(members) > 1 and _shared_layout(members):
+        if len(members) * len(xy_world) >= TREE_UNION_PROBES and _shared_layout(members):
             unions.setdefault((len(members), len(members[0].boxes)), []).append(g)
         else:
             alone += [(g, s) for s in members]
@@ -193,6 +194,10 @@ THREADED_PROBES = 20_000
 #: Point-member pairs of unions (points of each union times its members) below which unions are
 #: measured on the calling thread alone (:func:`least_member_clearances`).
 THREADED_UNION_PROBES = 64_000
+#: Point-member pairs of a union from which its boxes are searched in a tree
+#: (:func:`least_member_clearances`); below, member by member with the other sets, which costs
+#: less than building the tree (a 3-mode agent checked along 20 points).
+TREE_UNION_PROBES = 2_048
 
 T = TypeVar("T")
 #: Where a job's outcome goes: None, or what it raised.

@@ -88,5 +88,9 @@ def test_a_helper_keeps_its_cpus_when_the_caller_s_cpu_is_unknown_or_its_only_on
     finally:
         stop.set()
         thread.join()
+    # join() returns when Python is done with the thread, which the OS may still be ending.
+    deadline = time.monotonic() + 10.0
+    while os.path.exists(f"/proc/self/task/{native_id}") and time.monotonic() < deadline:
+        time.sleep(0.001)
     thread_placement.keep_helpers_off(ALLOWED[0])  # the ended thread is forgotten, no error
     assert native_id not in thread_placement._helpers

@@ -197,3 +197,14 @@ def test_a_batch_check_learns_its_own_cost_and_leaves_single_checks_theirs(
     assert answer["verdict"] == "exact" and len(answer["trajectories"]) == 200
     assert services.batch_answer_costs.exact.measured
     assert vars(services.answer_costs.exact) == vars(singles)
+
+
+def test_left_out_exact_answers_are_measured_in_a_share_of_the_time() -> None:
+    """Measuring a left-out exact answer holds the loop as long as that answer would have: the
+    next may start only once nine times as long again has passed (REMEASURE_SHARE 0.1)."""
+    costs = AnswerCosts()
+    assert costs.remeasure_after == -math.inf  # the first may start at once
+    costs.remeasured(10.0, 10.002)  # one of 2 ms
+    assert math.isclose(costs.remeasure_after, 10.002 + 9 * 0.002)
+    costs.remeasured(20.0, 20.0001)  # a light one: the next soon after
+    assert math.isclose(costs.remeasure_after, 20.0001 + 9 * 0.0001)

@@ -206,7 +206,8 @@ async def answer_states(
     timeline.done = time.perf_counter()
     answering = timeline.done - timeline.sets_done - timeline.cut_s - timeline.witness_s
     costs.response.record(answering, work.answering)
-    if no_time and not any(frt is not None for frt in exact):
+    skipped_all = no_time and not any(frt is not None for frt in exact)
+    if skipped_all and time.perf_counter() >= costs.remeasure_after:
         _measure_one_skipped(found, (costs, work), (xy, t_rel, reduction))
     _note_deadline(services, timeline, deadline_ms, len(states), not_ready, no_time)
     return results
@@ -219,7 +220,7 @@ def _measure_one_skipped(
 ) -> None:
     """After a check that answered every agent conservatively for want of time, measure what
     answering the first exact set it ``found`` would have cost (:func:`_measure_exact_answer`),
-    once the loop is free."""
+    once the loop is free (at most ``AnswerCosts.remeasure_after``'s share of its time)."""
     costs, work = costed
     xy, t_rel, reduction = probes
     skipped = next(i for i, frt in enumerate(found) if frt is not None)
@@ -515,7 +516,9 @@ def _measure_exact_answer(
         tube_clearances([frt], xy, [t_rel])
     else:
         trajectory_surrogates_of([frt], xy, [t_rel], reduction)
-    costs.exact.record(time.perf_counter() - start, units)
+    end = time.perf_counter()
+    costs.exact.record(end - start, units)
+    costs.remeasured(start, end)
 
 
 def _fit_tubes_to_deadline(

@@ -13,6 +13,7 @@ absolute deviations of it.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -20,6 +21,8 @@ from dataclasses import dataclass, field
 WEIGHT = 0.2
 #: Deviations above the average that the estimate allows for.
 SPREAD = 4.0
+#: Share of the event loop's time that measuring left-out exact answers may take.
+REMEASURE_SHARE = 0.1
 #: Probes of a check that one unit of work is (with :data:`FIXED_PROBES`: a 20-point check).
 UNIT_PROBES = 20
 #: An agent's work that does not grow with the probes, as probes: its share of a check's fixed
@@ -64,6 +67,14 @@ class AnswerCosts:
     exact: CostEstimate = field(default_factory=CostEstimate)
     conservative: CostEstimate = field(default_factory=CostEstimate)
     response: CostEstimate = field(default_factory=CostEstimate)
+    #: When (``time.perf_counter()``) an exact answer a check left out may next be measured
+    #: after it (``service.flows.checks``): each such measurement holds the event loop as long as
+    #: that answer would have, so they take at most :data:`REMEASURE_SHARE` of its time.
+    remeasure_after: float = -math.inf
+
+    def remeasured(self, started: float, ended: float) -> None:
+        """Note a measurement of a left-out exact answer from ``started`` to ``ended``."""
+        self.remeasure_after = ended + (ended - started) * (1.0 / REMEASURE_SHARE - 1.0)
 
     def upper_s(self, exact_units: float, conservative_units: float, answered: float) -> float:
         """Seconds to measure that many units against each kind of set and answer ``answered``

@@ -7,6 +7,7 @@ check"): a point is in C = K ⊕ R_col exactly when its distance to K is at most
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numba
 import numpy as np
@@ -58,8 +59,16 @@ def box_union_distances_until(
     counted per point: ``x``, ``y`` [A, N], ``boxes`` [A, M, 4], ``until`` [A, N] (boxes
     ``0 .. until - 1`` count for that point). The same values bit for bit, in one compiled pass
     without the [A, N, M] temporaries."""
+    return _on_boxes(_box_union_until, x, y, boxes, until)
+
+
+def _on_boxes(
+    kernel: Any, x: np.ndarray, y: np.ndarray, boxes: np.ndarray, until: np.ndarray
+) -> np.ndarray:
+    """``kernel(x, y, boxes, until, out)`` on contiguous arrays (float64, ``until`` int64), its
+    values ``out`` [x.shape]."""
     out = np.empty(x.shape, dtype=np.float64)
-    _box_union_until(
+    kernel(
         np.ascontiguousarray(x, dtype=np.float64),
         np.ascontiguousarray(y, dtype=np.float64),
         np.ascontiguousarray(boxes, dtype=np.float64),
@@ -107,15 +116,7 @@ def union_box_distances_until(
     non-negative values are monotone), so a node whose bounds cannot lower what the boxes
     measured already have found, or whose boxes all come after the point's windows, is skipped
     without changing the result."""
-    out = np.empty(x.shape, dtype=np.float64)
-    _union_until(
-        np.ascontiguousarray(x, dtype=np.float64),
-        np.ascontiguousarray(y, dtype=np.float64),
-        np.ascontiguousarray(boxes, dtype=np.float64),
-        np.ascontiguousarray(until, dtype=np.int64),
-        out,
-    )
-    return out
+    return _on_boxes(_union_until, x, y, boxes, until)
 
 
 @numba.njit(cache=True, inline="always")

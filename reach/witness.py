@@ -140,13 +140,12 @@ def first_witnessed(
 
 
 def compile_witness_kernel() -> None:
-    """Compile (or load from numba's cache) the kernels before a check needs them, for
-    positions as :func:`witnesses` keeps them (read-only)."""
+    """Compile (or load from numba's cache) the kernel checks search with
+    (:func:`first_witnessed`) before a check needs it, for positions as :func:`witnesses` keeps
+    them (read-only)."""
     xy = np.zeros((1, 2, 2))
     xy.flags.writeable = False
-    found = Witnesses(np.zeros(2), xy)
-    witnessed(found, np.zeros((1, 2)), None, 1.0)
-    first_witnessed(found, np.zeros((1, 2)), None, 1.0)
+    first_witnessed(Witnesses(np.zeros(2), xy), np.zeros((1, 2)), None, 1.0)
 
 
 @numba.njit(cache=True, nogil=True)

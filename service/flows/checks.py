@@ -253,14 +253,18 @@ class _Work:
 
     @classmethod
     def of_check(cls, points: CheckPoints, jobs: Sequence[FRTJob]) -> _Work:
-        probes = points.n_probes
-        members = [job.bounds.size // len(BOUND_COLUMNS) for job in jobs]
-        measuring = np.array([work_units(probes, m) for m in members], dtype=np.float64)
+        members = np.array([job.bounds.size // len(BOUND_COLUMNS) for job in jobs])
+        measuring = work_units(points.n_probes, members)
         return cls(measuring, len(jobs) * work_units(points.n_points))
+
+    @property
+    def total(self) -> float:
+        """Units of measuring every agent."""
+        return float(self.measuring.sum())
 
     def of(self, agents: Iterable[int]) -> float:
         """Units of measuring ``agents`` (indices)."""
-        return float(sum(self.measuring[i] for i in agents))
+        return float(self.measuring[list(agents)].sum())
 
 
 @dataclass(frozen=True)
@@ -358,7 +362,7 @@ async def _exact_sets_in_time(
     arrival, deadline_ms = deadline
     budget = wait_budget_s(arrival, deadline_ms, services.settings)
     costs, work = costed
-    budget -= costs.upper_s(work.of(range(len(jobs))), 0, work.answering)
+    budget -= costs.upper_s(work.total, 0, work.answering)
     # Cached sets first, without a task each (a planner's check of 50 agents mostly finds them).
     exact = services.cached_exact(jobs)
     late = [i for i, frt in enumerate(exact) if frt is None]
@@ -486,8 +490,8 @@ def _answer_in_time(
         - services.settings.deadline_reserve_ms / 1000.0
     )
     costs, work = costed
-    exact_units = [float(work.measuring[i]) for i in found]
-    keep = costs.exact_agents_within(left, exact_units, work.of(range(len(exact))), work.answering)
+    exact_units = work.measuring[found].tolist()
+    keep = costs.exact_agents_within(left, exact_units, work.total, work.answering)
     for i in found[keep:]:
         exact[i] = None
     return len(found) - keep

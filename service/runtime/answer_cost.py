@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 #: Weight of the newest measurement in the moving averages.
 WEIGHT = 0.2
@@ -30,9 +31,10 @@ UNIT_PROBES = 20
 FIXED_PROBES = 20
 
 
-def work_units(probes: int, members: int = 1) -> float:
+def work_units(probes: int, members: Any = 1) -> Any:
     """Units of work (see the module) of measuring an agent whose set is a union of ``members``
-    at ``probes`` probes; with ``members`` 1, also those of answering it."""
+    at ``probes`` probes (an array of agents' members: theirs); with ``members`` 1, also those
+    of answering it."""
     return members * (probes + FIXED_PROBES) / (UNIT_PROBES + FIXED_PROBES)
 
 
